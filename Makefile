@@ -1,0 +1,50 @@
+# spacetrack — `make help` lists the targets. Everything runs inside .venv, created on first use.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+ARGS ?=
+
+.DEFAULT_GOAL := help
+.PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs
+
+help: ## list the targets
+	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
+		awk -F'\t' '{printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade pip
+	$(PY) -m pip install -e '.[dev]'
+	@touch $(STAMP)
+
+install: $(STAMP) ## create .venv and install the package (editable) with dev tools
+
+demo: $(STAMP) ## build a small dataset and write a contact sheet and an annotated clip to outputs/demo
+	$(PY) -m spacetrack.demo $(ARGS)
+
+test: $(STAMP) ## run the test suite
+	$(PY) -m pytest -q $(ARGS)
+
+data: $(STAMP) ## render the default dataset into data/ (override keys with ARGS="data=smoke seed=3")
+	$(PY) -m spacetrack.build_data $(ARGS)
+
+ui: $(STAMP) ## serve the MLflow UI on the project's tracking store (http://127.0.0.1:5000)
+	$(VENV)/bin/mlflow ui --backend-store-uri $${MLFLOW_TRACKING_URI:-sqlite:///mlflow.db} --host 127.0.0.1 --port $${PORT:-5000}
+
+lint: $(STAMP) ## ruff check and format check
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff format --check src tests benchmarks
+
+format: $(STAMP) ## apply ruff fixes and formatting
+	$(VENV)/bin/ruff check --fix src tests benchmarks
+	$(VENV)/bin/ruff format src tests benchmarks
+
+bench-enhance: $(STAMP) ## time the DWT/HSV enhancement per 640x480 frame -> reports/enhance.json
+	$(PY) benchmarks/bench_enhance.py $(ARGS)
+
+bench: bench-enhance ## run every benchmark
+
+clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
+	rm -rf outputs multirun

@@ -1,0 +1,15 @@
+"""Where the project's Hydra configs live, and small helpers shared by every entry point."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+CONF_DIR = REPO_ROOT / "conf"
+
+
+def resolved_dict(cfg: DictConfig) -> dict:
+    """The config with every interpolation resolved, as plain containers (for logging and manifests)."""
+    return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=False)  # type: ignore[return-value]
