@@ -1,0 +1,39 @@
+"""Score a MOT results file against a ground-truth file: `python -m spacetrack.evaluate results=R gt=G`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from spacetrack.config import CONF_DIR
+from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.evaluation.table import format_table
+from spacetrack.io import atomic_write_text
+from spacetrack.mlflow_log import log_metrics_step, start_run
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    """Print the metrics table, write JSON if `output_json` is set, return the overall metrics."""
+    gt, results = read_mot_file(cfg.gt), read_mot_file(cfg.results)
+    name = Path(cfg.results).stem
+    with start_run(cfg, run_name=name):
+        scores = evaluate(
+            {name: (gt, results)}, iou_threshold=cfg.iou_threshold, min_visibility=cfg.min_visibility
+        )
+        print(format_table(scores), end="")
+        if cfg.output_json:
+            atomic_write_text(cfg.output_json, json.dumps(scores, indent=2) + "\n")
+        log_metrics_step(scores[OVERALL], step=0)
+    return scores[OVERALL]
+
+
+@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="evaluate")
+def main(cfg: DictConfig) -> None:
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

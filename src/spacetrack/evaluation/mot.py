@@ -1,0 +1,122 @@
+"""CLEAR-MOT and identity metrics (MOTA, MOTP, IDF1, IDSW, FP, FN, MT, ML) at an IoU threshold.
+
+Pure functions of MOT arrays (N, 9) `frame,id,x,y,w,h,conf,class,visibility` (boxes `tlwh`, pixels);
+motmetrics does the bookkeeping, we compute the IoU distances (its own helper needs NumPy < 2).
+Ground-truth rows with conf 0 (fully hidden targets) or a known visibility below `min_visibility` are
+ignored as MOTChallenge does: they are neither misses nor matches, and a hypothesis that the frame's
+optimal assignment pairs with one of them is dropped rather than counted as a false positive.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import motmetrics as mm
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from spacetrack.tracking.iou_matching import iou_matrix
+
+OVERALL = "OVERALL"
+_MM_METRICS = {
+    "mota": "mota",
+    "motp": "motp",
+    "idf1": "idf1",
+    "idp": "idp",
+    "idr": "idr",
+    "idsw": "num_switches",
+    "fp": "num_false_positives",
+    "fn": "num_misses",
+    "mt": "mostly_tracked",
+    "pt": "partially_tracked",
+    "ml": "mostly_lost",
+    "frag": "num_fragmentations",
+    "precision": "precision",
+    "recall": "recall",
+    "num_gt_ids": "num_unique_objects",
+    "num_frames": "num_frames",
+}
+
+
+def iou_distance(gt_tlwh: np.ndarray, hyp_tlwh: np.ndarray, iou_threshold: float = 0.5) -> np.ndarray:
+    """(N, M) matrix 1 - IoU, NaN (never a match) where IoU < `iou_threshold`."""
+    distance = 1.0 - iou_matrix(gt_tlwh, hyp_tlwh)
+    return np.where(distance > 1.0 - iou_threshold, np.nan, distance)
+
+
+def ignored_rows(gt: np.ndarray, min_visibility: float = 0.0) -> np.ndarray:
+    """Boolean mask of ground-truth rows to ignore: conf 0, or visibility known (>= 0) and too low."""
+    visibility = gt[:, 8]
+    return (gt[:, 6] == 0) | ((visibility >= 0) & (visibility < min_visibility))
+
+
+def _hypotheses_on_ignored(
+    gt_tlwh: np.ndarray, ignored: np.ndarray, hyp_tlwh: np.ndarray, iou_threshold: float
+) -> np.ndarray:
+    """Mask of hypotheses that the optimal assignment to all ground truth pairs with an ignored row."""
+    out = np.zeros(len(hyp_tlwh), bool)
+    if not ignored.any() or not len(hyp_tlwh):
+        return out
+    distance = iou_distance(gt_tlwh, hyp_tlwh, iou_threshold)
+    rows, cols = linear_sum_assignment(np.where(np.isnan(distance), 2.0, distance))
+    valid = ~np.isnan(distance[rows, cols])
+    out[cols[valid & ignored[rows]]] = True
+    return out
+
+
+def accumulate(
+    gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, min_visibility: float = 0.0
+) -> mm.MOTAccumulator:
+    """Frame-by-frame matching of results `hyp` against ground truth `gt` (both (N, >=6) MOT arrays)."""
+    acc = mm.MOTAccumulator(auto_id=False)
+    gt_frames, hyp_frames = gt[:, 0].astype(int), hyp[:, 0].astype(int)
+    ignored = ignored_rows(gt, min_visibility) if gt.shape[1] > 8 else np.zeros(len(gt), bool)
+    for frame in np.union1d(gt_frames, hyp_frames):
+        g, h = gt[gt_frames == frame], hyp[hyp_frames == frame]
+        g_ignored = ignored[gt_frames == frame]
+        h = h[~_hypotheses_on_ignored(g[:, 2:6], g_ignored, h[:, 2:6], iou_threshold)]
+        g = g[~g_ignored]
+        acc.update(
+            g[:, 1].astype(int),
+            h[:, 1].astype(int),
+            iou_distance(g[:, 2:6], h[:, 2:6], iou_threshold),
+            frameid=frame,
+        )
+    return acc
+
+
+def summarize(accumulators: Mapping[str, mm.MOTAccumulator]) -> dict[str, dict[str, float]]:
+    """Metrics per sequence name plus `OVERALL` (all sequences pooled), as plain dicts of floats.
+
+    MOTA, IDF1, precision and recall are fractions; MOTP is the mean IoU of matched pairs (the
+    MOTChallenge convention; motmetrics itself reports 1 - that); the rest are counts.
+    """
+    names = list(accumulators)
+    host = mm.metrics.create()
+    frame = host.compute_many(
+        [accumulators[n] for n in names],
+        metrics=list(_MM_METRICS.values()),
+        names=names,
+        generate_overall=True,
+    )
+    frame = frame.rename(index={"OVERALL": OVERALL})
+    out: dict[str, dict[str, float]] = {}
+    for name, row in frame.iterrows():
+        metrics = {key: float(row[mm_key]) for key, mm_key in _MM_METRICS.items()}
+        metrics["motp"] = 1.0 - metrics["motp"]
+        out[str(name)] = metrics
+    return out
+
+
+def evaluate(
+    sequences: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    *,
+    iou_threshold: float = 0.5,
+    min_visibility: float = 0.0,
+) -> dict[str, dict[str, float]]:
+    """`summarize` of {name: (gt, hyp)} MOT arrays; see `accumulate` for the matching rules."""
+    accs = {
+        name: accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
+        for name, (gt, hyp) in sequences.items()
+    }
+    return summarize(accs)

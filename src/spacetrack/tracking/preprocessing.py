@@ -1,0 +1,48 @@
+"""Detection-level filtering before tracking: the confidence floor and greedy non-maximum suppression."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def non_max_suppression(tlwh: np.ndarray, scores: np.ndarray, max_overlap: float) -> np.ndarray:
+    """Indices of the boxes kept, highest score first.
+
+    tlwh: (N, 4) boxes. Greedy: the best remaining box is kept and every other box that it covers by
+    more than `max_overlap` is dropped. As in the reference DeepSORT the overlap is the intersection over
+    the area of the *other* box (not IoU), with the inclusive-pixel +1 convention; with `max_overlap`
+    >= 1 nothing is dropped and only the order changes.
+    """
+    tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
+    x1, y1 = tlwh[:, 0], tlwh[:, 1]
+    x2, y2 = x1 + tlwh[:, 2], y1 + tlwh[:, 3]
+    area = (x2 - x1 + 1) * (y2 - y1 + 1)
+    order = np.argsort(scores)  # ascending; the reference's sort, so ties break the same way
+    keep = []
+    while len(order):
+        best, rest = order[-1], order[:-1]
+        keep.append(best)
+        w = np.maximum(0.0, np.minimum(x2[best], x2[rest]) - np.maximum(x1[best], x1[rest]) + 1)
+        h = np.maximum(0.0, np.minimum(y2[best], y2[rest]) - np.maximum(y1[best], y1[rest]) + 1)
+        order = rest[(w * h) / area[rest] <= max_overlap]
+    return np.asarray(keep, dtype=int)
+
+
+def filter_detections(
+    tlwh: np.ndarray,
+    confidence: np.ndarray,
+    *,
+    min_confidence: float,
+    nms_max_overlap: float,
+    min_detection_height: float = 0.0,
+) -> np.ndarray:
+    """Indices of the detections the tracker sees, in the order it sees them (highest confidence first).
+
+    Drops detections below `min_confidence` or lower than `min_detection_height` pixels, then runs
+    `non_max_suppression` with `nms_max_overlap`.
+    """
+    tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
+    confidence = np.asarray(confidence, dtype=float).reshape(-1)
+    candidates = np.flatnonzero((confidence >= min_confidence) & (tlwh[:, 3] >= min_detection_height))
+    kept = non_max_suppression(tlwh[candidates], confidence[candidates], nms_max_overlap)
+    return candidates[kept]

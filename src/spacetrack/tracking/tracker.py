@@ -1,0 +1,154 @@
+"""The multi-target tracker: predict, associate (cascade on eq. 15, then IoU), update, manage tracks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spacetrack.tracking.detection import Detections
+from spacetrack.tracking.iou_matching import iou_matrix
+from spacetrack.tracking.kalman_filter import CHI2_95_4DOF, KalmanFilter
+from spacetrack.tracking.linear_assignment import INFTY_COST, matching_cascade, min_cost_matching
+from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
+from spacetrack.tracking.track import Track
+
+
+class Tracker:
+    """DeepSORT's association and track management over a stream of frames.
+
+    metric: the appearance metric (eq. 13), or None to associate by IoU alone (SORT).
+    max_iou_distance: largest 1 - IoU accepted in the IoU stage.
+    max_age: frames a confirmed track may go unmatched before it is deleted (also the cascade depth).
+    n_init: hits that confirm a tentative track.
+    lambda_: weight of the Mahalanobis distance in eq. (15); 0 is the original DeepSORT, where motion
+        only gates and appearance alone ranks.
+    gating_threshold: Mahalanobis gate t(1) of eq. (12) (0.95 chi-square quantile, 4 dof).
+    """
+
+    def __init__(
+        self,
+        *,
+        metric: NearestNeighborDistanceMetric | None,
+        max_iou_distance: float = 0.7,
+        max_age: int = 70,
+        n_init: int = 3,
+        lambda_: float = 0.0,
+        gating_threshold: float = CHI2_95_4DOF,
+    ) -> None:
+        if not 0.0 <= lambda_ <= 1.0:
+            raise ValueError(f"lambda_ must lie in [0, 1], got {lambda_}")
+        self.metric = metric
+        self.max_iou_distance = max_iou_distance
+        self.max_age = max_age
+        self.n_init = n_init
+        self.lambda_ = lambda_
+        self.gating_threshold = gating_threshold
+        self.kf = KalmanFilter()
+        self.tracks: list[Track] = []
+        self._next_id = 1
+
+    def predict(self) -> None:
+        """Move every track one frame ahead (call once per frame, before `update`)."""
+        if not self.tracks:
+            return
+        means, covs = self.kf.predict(*self._states(self.tracks))
+        for track, mean, cov in zip(self.tracks, means, covs, strict=True):
+            track.predicted(mean, cov)
+
+    def update(self, detections: Detections) -> None:
+        """Associate this frame's `detections`, update matched tracks, age the others, start new ones."""
+        matches, unmatched_tracks, unmatched_detections = self._match(detections)
+        if matches:
+            t_idx, d_idx = map(list, zip(*matches, strict=True))
+            tracks = [self.tracks[i] for i in t_idx]
+            means, covs = self.kf.update(*self._states(tracks), detections.subset(d_idx).to_xyah())
+            use_features = self.metric is not None
+            for track, mean, cov, d in zip(tracks, means, covs, d_idx, strict=True):
+                track.hit(mean, cov, detections.feature[d] if use_features else None)
+        for i in unmatched_tracks:
+            self.tracks[i].mark_missed()
+        for d in unmatched_detections:
+            self._initiate_track(detections, d)
+        self.tracks = [t for t in self.tracks if not t.is_deleted()]
+        if self.metric is not None:
+            self._fit_metric()
+
+    def outputs(self) -> list[tuple[int, np.ndarray]]:
+        """(track id, box `tlwh`) of the confirmed tracks matched this frame or the one before.
+
+        The box is the filtered state, not the detection (the reference DeepSORT's output rule).
+        """
+        return [
+            (t.track_id, t.to_tlwh()) for t in self.tracks if t.is_confirmed() and t.time_since_update <= 1
+        ]
+
+    @staticmethod
+    def _states(tracks: list[Track]) -> tuple[np.ndarray, np.ndarray]:
+        return np.stack([t.mean for t in tracks]), np.stack([t.covariance for t in tracks])
+
+    def _initiate_track(self, detections: Detections, d: int) -> None:
+        mean, cov = self.kf.initiate(detections.to_xyah()[d])
+        feature = detections.feature[d] if self.metric is not None else None
+        self.tracks.append(
+            Track(mean, cov, self._next_id, n_init=self.n_init, max_age=self.max_age, feature=feature)
+        )
+        self._next_id += 1
+
+    def _fit_metric(self) -> None:
+        """Hand the confirmed tracks' new features to the metric; it forgets every other track."""
+        confirmed = [t for t in self.tracks if t.is_confirmed()]
+        pending = [(f, t.track_id) for t in confirmed for f in t.features]
+        for t in confirmed:
+            t.features = []
+        features = np.array([f for f, _ in pending]) if pending else np.zeros((0, 0))
+        targets = np.array([k for _, k in pending], dtype=int)
+        self.metric.partial_fit(features, targets, [t.track_id for t in confirmed])
+
+    def _appearance_cost(
+        self, detections: Detections, track_idx: list[int], det_idx: list[int]
+    ) -> np.ndarray:
+        """Eq. (15) over the pairs, with pairs outside either gate (eqs. 12, 14) set to INFTY_COST."""
+        tracks = [self.tracks[i] for i in track_idx]
+        cosine = self.metric.distance(detections.feature[det_idx], [t.track_id for t in tracks])
+        mahalanobis = self.kf.gating_distance(*self._states(tracks), detections.subset(det_idx).to_xyah())
+        cost = self.lambda_ * mahalanobis + (1.0 - self.lambda_) * cosine
+        gated = (mahalanobis > self.gating_threshold) | (cosine > self.metric.matching_threshold)
+        cost[gated] = INFTY_COST
+        return cost
+
+    def _iou_cost(self, detections: Detections, track_idx: list[int], det_idx: list[int]) -> np.ndarray:
+        """1 - IoU between track states and detections; tracks unseen for over a frame never match."""
+        tracks = [self.tracks[i] for i in track_idx]
+        boxes = np.stack([t.to_tlwh() for t in tracks])
+        cost = 1.0 - iou_matrix(boxes, detections.tlwh[det_idx])
+        cost[np.array([t.time_since_update > 1 for t in tracks])] = INFTY_COST
+        return cost
+
+    def _match(self, detections: Detections) -> tuple[list[tuple[int, int]], list[int], list[int]]:
+        confirmed = [i for i, t in enumerate(self.tracks) if t.is_confirmed()]
+        unconfirmed = [i for i, t in enumerate(self.tracks) if not t.is_confirmed()]
+        all_detections = list(range(len(detections)))
+        if self.metric is None:
+            matches_a, unmatched_a, unmatched_detections = [], confirmed, all_detections
+        else:
+            # Admissible pairs cost at most this (both gates passed), so it is the acceptance threshold.
+            max_cost = (
+                self.lambda_ * self.gating_threshold + (1 - self.lambda_) * self.metric.matching_threshold
+            )
+            matches_a, unmatched_a, unmatched_detections = matching_cascade(
+                lambda t, d: self._appearance_cost(detections, t, d),
+                max_cost,
+                self.max_age,
+                confirmed,
+                [self.tracks[i].time_since_update for i in confirmed],
+                all_detections,
+            )
+        # Tracks lost just now, and tentative ones, get a second chance by box overlap alone.
+        iou_candidates = unconfirmed + [k for k in unmatched_a if self.tracks[k].time_since_update == 1]
+        unmatched_a = [k for k in unmatched_a if self.tracks[k].time_since_update != 1]
+        matches_b, unmatched_b, unmatched_detections = min_cost_matching(
+            lambda t, d: self._iou_cost(detections, t, d),
+            self.max_iou_distance,
+            iou_candidates,
+            unmatched_detections,
+        )
+        return matches_a + matches_b, sorted(set(unmatched_a + unmatched_b)), unmatched_detections
