@@ -55,7 +55,7 @@ class Detect(nn.Module):
         for conv, s in zip(self.m, self.stride.tolist(), strict=True):
             b = conv.bias.detach().view(self.num_anchors, -1)
             b[:, 4] += math.log(8 / (image_size / s) ** 2)
-            b[:, 5:] += math.log(0.6 / (self.num_classes - 0.99)) if self.num_classes > 1 else 0.0
+            b[:, 5:] += math.log(0.6 / (self.num_classes - 0.99))
             conv.bias.data = b.view(-1)
 
     def forward(self, features: Sequence[torch.Tensor]) -> list[torch.Tensor]:

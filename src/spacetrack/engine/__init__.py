@@ -1,0 +1,1 @@
+"""Detector training: loss and target assignment, optimisation, validation metrics, checkpoints."""
