@@ -1,0 +1,184 @@
+"""MLflow run logging shared by every entry point.
+
+`start_run(cfg)` opens a run in experiment `cfg.logger.experiment` on `cfg.logger.tracking_uri` and logs
+what makes the run reproducible: the resolved Hydra config (flattened params and a `config.yaml`
+artifact) and the git commit. The helpers below it are no-ops when no run is active, so a stage calls
+them unconditionally and `logger=none` silences everything.
+
+The default store is `sqlite:///mlflow.db` in the repository root; a relative sqlite path is anchored at
+the repository root, and artifacts of a sqlite store go to `mlartifacts/` beside the database, so runs
+and their files land in one place whatever the working directory.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import mlflow
+import numpy as np
+from mlflow.entities import RunStatus
+from mlflow.exceptions import MlflowException
+from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
+from omegaconf import DictConfig, OmegaConf
+
+from spacetrack.config import REPO_ROOT, resolved_dict
+
+DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
+_SQLITE = "sqlite:///"
+PARENT_RUN_TAG = "mlflow.parentRunId"
+GIT_COMMIT_TAG = "mlflow.source.git.commit"
+
+
+def tracking_uri(uri: str | None = None) -> str:
+    """`uri`, else `$MLFLOW_TRACKING_URI`, else `sqlite:///<repo root>/mlflow.db`.
+
+    A relative sqlite path (`sqlite:///mlflow.db`) is made absolute under the repository root.
+    """
+    uri = uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+    if uri.startswith(_SQLITE):
+        db = Path(uri[len(_SQLITE) :])
+        if not db.is_absolute():
+            return _SQLITE + str(REPO_ROOT / db)
+    return uri
+
+
+def flatten_params(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Nested mapping -> {"dotted.key": str(value)}; values cut to MLflow's parameter length limit."""
+    flat: dict[str, str] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            flat.update(flatten_params(value, prefix=f"{name}."))
+        else:
+            flat[name] = str(value)[:MAX_PARAM_VAL_LENGTH]
+    return flat
+
+
+def _experiment_id(name: str, uri: str) -> str:
+    """Id of experiment `name`, created if missing (artifacts beside the database for sqlite stores)."""
+    client = mlflow.MlflowClient()
+    experiment = client.get_experiment_by_name(name)
+    if experiment is not None:
+        if experiment.lifecycle_stage != "active":
+            raise ValueError(
+                f"MLflow experiment {name!r} on {uri} is deleted; restore it or set logger.experiment"
+            )
+        return experiment.experiment_id
+    location = None
+    if uri.startswith(_SQLITE):
+        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+        location = (Path(uri[len(_SQLITE) :]).parent / "mlartifacts" / slug).as_uri()
+    try:
+        return client.create_experiment(name, artifact_location=location)
+    except MlflowException:
+        # Another process (a parallel sweep job) created it between our lookup and create.
+        experiment = client.get_experiment_by_name(name)
+        if experiment is None:
+            raise
+        return experiment.experiment_id
+
+
+def _git_tags() -> dict[str, str]:
+    """Commit of the repository and whether the working tree differs from it (empty outside git)."""
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        status = subprocess.run(
+            ["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return {}
+    return {GIT_COMMIT_TAG: commit, "git_dirty": str(bool(status.strip())).lower()}
+
+
+@contextmanager
+def start_run(
+    cfg: DictConfig,
+    *,
+    run_name: str | None = None,
+    parent_run_id: str | None = None,
+    nested: bool = False,
+    tags: Mapping[str, str] | None = None,
+) -> Iterator[mlflow.ActiveRun | None]:
+    """Open an MLflow run for `cfg` and log its resolved config and git commit; yield the ActiveRun.
+
+    Yields None and logs nothing when `cfg.logger.enabled` is false. With `parent_run_id` the run is a
+    child of that run (a fold of a cross-validation); `nested=True` makes it a child of the active run.
+    The run ends FINISHED, FAILED when the block raises, or KILLED on Ctrl-C.
+    """
+    if not cfg.logger.enabled:
+        yield None
+        return
+    uri = tracking_uri(cfg.logger.tracking_uri)
+    mlflow.set_tracking_uri(uri)
+    experiment_id = _experiment_id(str(cfg.logger.experiment), uri)
+    run = mlflow.start_run(
+        experiment_id=experiment_id,
+        run_name=run_name,
+        parent_run_id=parent_run_id,
+        nested=nested or parent_run_id is not None,
+        tags={**_git_tags(), **(tags or {})},
+    )
+    try:
+        mlflow.log_params(flatten_params(resolved_dict(cfg)))
+        mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
+        yield run
+    except KeyboardInterrupt:
+        mlflow.end_run(RunStatus.to_string(RunStatus.KILLED))
+        raise
+    except BaseException:
+        mlflow.end_run(RunStatus.to_string(RunStatus.FAILED))
+        raise
+    mlflow.end_run(RunStatus.to_string(RunStatus.FINISHED))
+
+
+def log_artifact_file(path: str | Path, artifact_path: str | None = None) -> None:
+    """Copy the file at `path` into the active run's artifacts (under folder `artifact_path`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"cannot log artifact {path}: no such file")
+    if mlflow.active_run() is not None:
+        mlflow.log_artifact(str(path), artifact_path=artifact_path)
+
+
+def log_metrics_step(metrics: Mapping[str, float], step: int) -> None:
+    """Log `metrics` at `step` (epoch, frame or fold index) on the active run."""
+    if mlflow.active_run() is not None:
+        mlflow.log_metrics({name: float(value) for name, value in metrics.items()}, step=step)
+
+
+def cv_parent_summary(parent_run_id: str, metric_names: Sequence[str]) -> dict[str, float]:
+    """Mean and standard deviation over the finished child runs of `parent_run_id`, logged on the parent.
+
+    For every name in `metric_names` it logs `<name>_mean` and `<name>_std` (population std, ddof=0,
+    over the children's last logged values) and returns them. A metric no child logged is an error.
+    """
+    client = mlflow.MlflowClient()
+    parent = client.get_run(parent_run_id)
+    children = client.search_runs(
+        [parent.info.experiment_id],
+        filter_string=f"tags.`{PARENT_RUN_TAG}` = '{parent_run_id}' and attributes.status = 'FINISHED'",
+    )
+    summary: dict[str, float] = {}
+    for name in metric_names:
+        values = [child.data.metrics[name] for child in children if name in child.data.metrics]
+        if not values:
+            raise ValueError(
+                f"no finished child run of {parent_run_id} logged metric {name!r} "
+                f"({len(children)} finished children)"
+            )
+        summary[f"{name}_mean"] = float(np.mean(values))
+        summary[f"{name}_std"] = float(np.std(values))
+    for key, value in summary.items():
+        client.log_metric(parent_run_id, key, value)
+    return summary
