@@ -1,0 +1,103 @@
+"""Detection metrics on plain arrays: greedy matching, 101-point interpolated AP, precision and recall.
+
+mAP@0.5 is the mean over classes with ground truth of the AP at IoU 0.5; mAP@0.5:0.95 also averages
+over the ten IoU thresholds 0.50, 0.55, ..., 0.95 (the COCO protocol). Boxes are `xyxy` pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+IOU_THRESHOLDS = np.linspace(0.5, 0.95, 10)
+RECALL_POINTS = np.linspace(0.0, 1.0, 101)
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU matrix (len(a), len(b)) of two `xyxy` box sets."""
+    lt = np.maximum(a[:, None, :2], b[None, :, :2])
+    rb = np.minimum(a[:, None, 2:4], b[None, :, 2:4])
+    inter = np.clip(rb - lt, 0, None).prod(axis=2)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-12)
+
+
+def match_detections(
+    pred_boxes: np.ndarray,
+    pred_scores: np.ndarray,
+    pred_classes: np.ndarray,
+    gt_boxes: np.ndarray,
+    gt_classes: np.ndarray,
+    iou_thresholds: np.ndarray = IOU_THRESHOLDS,
+) -> np.ndarray:
+    """(num_pred, num_thresholds) bool: is each detection a true positive at each IoU threshold?
+
+    Detections are taken in descending score order; each claims the unclaimed ground-truth box of
+    its class with the highest IoU at or above the threshold (one image at a time).
+    """
+    tp = np.zeros((len(pred_boxes), len(iou_thresholds)), dtype=bool)
+    if len(pred_boxes) == 0 or len(gt_boxes) == 0:
+        return tp
+    iou = box_iou(pred_boxes, gt_boxes) * (pred_classes[:, None] == gt_classes[None, :])
+    claimed = np.zeros((len(iou_thresholds), len(gt_boxes)), dtype=bool)
+    for i in np.argsort(-pred_scores, kind="stable"):
+        if iou[i].max() < iou_thresholds.min():
+            continue
+        candidates = np.where((iou[i][None, :] >= iou_thresholds[:, None]) & ~claimed, iou[i][None, :], -1.0)
+        best = candidates.argmax(axis=1)
+        hit = candidates[np.arange(len(iou_thresholds)), best] >= 0
+        tp[i, hit] = True
+        claimed[np.flatnonzero(hit), best[hit]] = True
+    return tp
+
+
+def interpolated_ap(recall: np.ndarray, precision: np.ndarray) -> float:
+    """Average of the precision envelope at 101 recall points (recall ascending, as from a ranked list)."""
+    if len(recall) == 0:
+        return 0.0
+    envelope = np.maximum.accumulate(precision[::-1])[::-1]
+    idx = np.searchsorted(recall, RECALL_POINTS, side="left")
+    sampled = np.where(idx < len(recall), envelope[np.minimum(idx, len(recall) - 1)], 0.0)
+    return float(sampled.mean())
+
+
+def detection_metrics(
+    tp: np.ndarray, scores: np.ndarray, pred_classes: np.ndarray, gt_classes: np.ndarray
+) -> dict[str, object]:
+    """mAP@0.5, mAP@0.5:0.95, and precision/recall at the score threshold with the best mean F1.
+
+    `tp` (num_pred, num_thresholds) comes from `match_detections` over all images, `scores` and
+    `pred_classes` are per detection, `gt_classes` per ground-truth box. Also returns, for plotting,
+    `pr_curves` {class: (recall, precision) at IoU 0.5} and `score_threshold`.
+    """
+    order = np.argsort(-scores, kind="stable")
+    tp, scores, pred_classes = tp[order], scores[order], pred_classes[order]
+    classes = np.unique(gt_classes)
+    ap = np.zeros((len(classes), tp.shape[1]))
+    grid = np.linspace(0, 1, 1000)
+    p_at = np.zeros((len(classes), len(grid)))
+    r_at = np.zeros((len(classes), len(grid)))
+    curves: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for k, c in enumerate(classes):
+        mine = pred_classes == c
+        num_gt = int((gt_classes == c).sum())
+        hits = np.cumsum(tp[mine], axis=0)
+        misses = np.cumsum(~tp[mine], axis=0)
+        recall = hits / num_gt
+        precision = hits / np.maximum(hits + misses, 1)
+        ap[k] = [interpolated_ap(recall[:, j], precision[:, j]) for j in range(tp.shape[1])]
+        curves[int(c)] = (recall[:, 0], precision[:, 0])
+        if mine.any():
+            # Scores descend, so interpolate on the negated scores (ascending) for each threshold.
+            r_at[k] = np.interp(-grid, -scores[mine], recall[:, 0], left=0.0)
+            p_at[k] = np.interp(-grid, -scores[mine], precision[:, 0], left=1.0)
+    f1 = (2 * p_at * r_at / np.maximum(p_at + r_at, 1e-12)).mean(axis=0) if len(classes) else grid * 0
+    best = int(f1.argmax())
+    return {
+        "map50": float(ap[:, 0].mean()) if len(classes) else 0.0,
+        "map50_95": float(ap.mean()) if len(classes) else 0.0,
+        "precision": float(p_at[:, best].mean()) if len(classes) else 0.0,
+        "recall": float(r_at[:, best].mean()) if len(classes) else 0.0,
+        "score_threshold": float(grid[best]),
+        "pr_curves": curves,
+    }

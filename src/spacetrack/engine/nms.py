@@ -1,0 +1,33 @@
+"""Turn decoded detector outputs into final detections with torchvision's batched NMS."""
+
+from __future__ import annotations
+
+import torch
+from torchvision.ops import batched_nms
+
+from spacetrack.engine.boxes import xywh_to_xyxy
+
+
+def non_max_suppression(
+    pred: torch.Tensor, *, conf_threshold: float = 0.001, iou_threshold: float = 0.6, max_det: int = 300
+) -> list[torch.Tensor]:
+    """Per image an (n, 6) tensor `x1, y1, x2, y2, score, class` (xyxy pixels), best score first.
+
+    `pred` is `YOLOv5.predict` output (B, N, 5 + classes). The score is objectness times the best
+    class probability (objectness alone with one class, whose class output is never trained). NMS is
+    per class.
+    """
+    out = []
+    num_classes = pred.shape[2] - 5
+    for p in pred:
+        if num_classes > 1:
+            cls_score, cls = p[:, 5:].max(dim=1)
+            score = p[:, 4] * cls_score
+        else:
+            score = p[:, 4]
+            cls = torch.zeros_like(score, dtype=torch.long)
+        keep = score > conf_threshold
+        boxes, score, cls = xywh_to_xyxy(p[keep, :4]), score[keep], cls[keep]
+        kept = batched_nms(boxes.float(), score.float(), cls, iou_threshold)[:max_det]
+        out.append(torch.cat((boxes[kept], score[kept, None], cls[kept, None].to(boxes.dtype)), dim=1))
+    return out

@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+import torch
+
+from spacetrack.engine.metrics import box_iou, detection_metrics, interpolated_ap, match_detections
+from spacetrack.engine.nms import non_max_suppression
+
+GT = np.array([[0, 0, 10, 10], [50, 50, 60, 60]], dtype=float)
+
+
+def test_hand_built_image_has_known_map():
+    # A: exact hit on box 0 (score .9); B: on nothing (.8); C: IoU 0.62 with box 1 (.7).
+    preds = np.array([[0, 0, 10, 10], [100, 100, 110, 110], [50, 50, 60, 56.2]], dtype=float)
+    scores = np.array([0.9, 0.8, 0.7])
+    classes = np.zeros(3)
+    tp = match_detections(preds, scores, classes, GT, np.zeros(2))
+    assert tp[0].all() and not tp[1].any()
+    assert tp[2].tolist() == [True] * 3 + [False] * 7  # thresholds 0.50, 0.55, 0.60 <= 0.62
+    out = detection_metrics(tp, scores, classes, np.zeros(2))
+    # IoU 0.5: recall .5,.5,1 with precision 1,.5,2/3 -> 51 points at 1 and 50 at 2/3 of 101.
+    ap_hit = (51 + 50 * 2 / 3) / 101
+    ap_miss = 51 / 101
+    assert out["map50"] == pytest.approx(ap_hit)
+    assert out["map50_95"] == pytest.approx((3 * ap_hit + 7 * ap_miss) / 10)
+    # Best F1 keeps all three detections: precision 2/3, recall 1.
+    assert out["precision"] == pytest.approx(2 / 3, abs=1e-3)
+    assert out["recall"] == pytest.approx(1.0)
+
+
+def test_greedy_matching_by_score_and_class():
+    preds = np.array([[0, 0, 10, 10], [0, 0, 10, 9], [50, 50, 60, 60]], dtype=float)
+    tp = match_detections(preds, np.array([0.5, 0.9, 0.8]), np.array([0, 0, 1]), GT, np.array([0, 0]))
+    # The higher-scored near-duplicate claims box 0 first; the third has the wrong class.
+    assert tp[:, 0].tolist() == [False, True, False]
+
+
+def test_perfect_detector_and_a_class_without_predictions():
+    tp = match_detections(GT, np.array([0.9, 0.8]), np.zeros(2), GT, np.zeros(2))
+    assert detection_metrics(tp, np.array([0.9, 0.8]), np.zeros(2), np.zeros(2))["map50_95"] == pytest.approx(
+        1.0
+    )
+    # A second class with ground truth but no detection halves the mean.
+    out = detection_metrics(tp, np.array([0.9, 0.8]), np.zeros(2), np.array([0, 0, 1]))
+    assert out["map50"] == pytest.approx(0.5)
+
+
+def test_interpolated_ap_uses_the_precision_envelope():
+    assert interpolated_ap(np.array([0.5, 1.0]), np.array([0.5, 1.0])) == pytest.approx(1.0)
+    assert interpolated_ap(np.array([]), np.array([])) == 0.0
+
+
+def test_box_iou():
+    assert box_iou(GT, GT).round(6).tolist() == [[1.0, 0.0], [0.0, 1.0]]
+
+
+def test_nms_keeps_the_best_of_overlapping_boxes_per_class():
+    # Rows cx, cy, w, h, objectness, class scores (2 classes).
+    pred = torch.tensor(
+        [
+            [
+                [20, 20, 10, 10, 0.9, 0.9, 0.1],
+                [21, 20, 10, 10, 0.8, 0.9, 0.1],
+                [21, 20, 10, 10, 0.8, 0.1, 0.9],
+                [80, 80, 10, 10, 0.0001, 0.9, 0.1],
+            ]
+        ]
+    )
+    (out,) = non_max_suppression(pred, conf_threshold=0.01, iou_threshold=0.5)
+    assert out[:, 5].tolist() == [0.0, 1.0]
+    assert out[0, :4].tolist() == [15.0, 15.0, 25.0, 25.0]
+    assert out[0, 4].item() == pytest.approx(0.81)
