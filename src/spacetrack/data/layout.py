@@ -1,0 +1,84 @@
+"""Reading the on-disk dataset layout (see the README's "Dataset format").
+
+A dataset root holds `manifest.json` and one folder per sequence with `img/`, `gt/gt.txt`,
+`gt/static.txt`, `labels/`, `masks/` and `seqinfo.ini`. Frame numbers are 1-based everywhere.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+MANIFEST = "manifest.json"
+FORMAT_VERSION = 1
+MOT_COLUMNS = ("frame", "id", "x", "y", "w", "h", "conf", "class", "visibility")
+
+
+def frame_name(frame: int, ext: str) -> str:
+    """File name of 1-based `frame`, e.g. frame_name(1, "jpg") == "000001.jpg"."""
+    return f"{frame:06d}.{ext}"
+
+
+def load_manifest(root: str | Path) -> dict:
+    """The dataset manifest at `root`, with a clear error if it is missing or of another format."""
+    path = Path(root) / MANIFEST
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{path} not found: {root} is not a built dataset (make it with `make data` or "
+            "`python -m spacetrack.build_data`)"
+        )
+    manifest = json.loads(path.read_text())
+    version = manifest.get("format_version")
+    if version != FORMAT_VERSION:
+        raise ValueError(f"{path}: format_version {version!r}, expected {FORMAT_VERSION}")
+    return manifest
+
+
+def split_sequences(manifest: dict, fold: int) -> tuple[list[str], list[str]]:
+    """(training, validation) sequence names: fold `fold` validates, every other fold trains."""
+    num_folds = int(manifest["num_folds"])
+    if not isinstance(fold, (int, np.integer)) or not 0 <= fold < num_folds:
+        raise ValueError(f"fold {fold!r} is outside 0..{num_folds - 1} (dataset {manifest.get('name')})")
+    train = [s["name"] for s in manifest["sequences"] if s["fold"] != fold]
+    val = [s["name"] for s in manifest["sequences"] if s["fold"] == fold]
+    return train, val
+
+
+def frame_paths(root: str | Path, seq: str, image_dir: str = "img") -> list[Path]:
+    """Sorted image paths of sequence `seq` in folder `image_dir` (e.g. "img" or "img_dwt_hsv")."""
+    folder = Path(root) / seq / image_dir
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder} not found (sequence {seq!r}, image folder {image_dir!r})")
+    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
+    if not paths:
+        raise FileNotFoundError(f"{folder} holds no .jpg or .png frames")
+    return paths
+
+
+def read_mot(path: str | Path) -> np.ndarray:
+    """MOT rows `frame,id,x,y,w,h,conf,class,visibility` as an (N, 9) float64 array (N may be 0)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found")
+    text = path.read_text().strip()
+    if not text:
+        return np.zeros((0, len(MOT_COLUMNS)))
+    rows = np.loadtxt(path, delimiter=",", ndmin=2)
+    if rows.shape[1] != len(MOT_COLUMNS):
+        raise ValueError(
+            f"{path}: {rows.shape[1]} columns, expected {len(MOT_COLUMNS)} ({','.join(MOT_COLUMNS)})"
+        )
+    return rows
+
+
+def read_yolo_labels(path: str | Path) -> np.ndarray:
+    """YOLO rows `class cx cy w h` (normalised) as an (N, 5) float64 array; a missing file means no target."""
+    path = Path(path)
+    if not path.is_file() or not path.read_text().strip():
+        return np.zeros((0, 5))
+    rows = np.loadtxt(path, ndmin=2)
+    if rows.shape[1] != 5:
+        raise ValueError(f"{path}: {rows.shape[1]} columns, expected 5 (class cx cy w h)")
+    return rows

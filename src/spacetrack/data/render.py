@@ -1,0 +1,233 @@
+"""Rendering a planned sequence frame by frame, with its exact ground truth.
+
+The truth comes from the same silhouettes that make the image: objects are composited far to near, an
+owner map records which object each pixel shows, and boxes, visibility and motion masks are read from
+it. Image-only effects (motion blur, optics, noise, stray light) never change the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from spacetrack.data import optics
+from spacetrack.data.raster import Layer, render_mesh
+from spacetrack.data.scene import ObjectPlan, ScenePlan
+
+
+@dataclass(frozen=True)
+class TruthRow:
+    """One object in one frame. Box (x, y, w, h) in pixels, 0-based, covering columns x..x+w-1."""
+
+    id: int
+    class_id: int
+    static: bool
+    x: int
+    y: int
+    w: int
+    h: int
+    visibility: float  # visible pixels / whole silhouette (unclipped, unoccluded)
+    visible_px: int
+    occluded_px: int  # in-frame silhouette pixels hidden by nearer objects
+
+
+@dataclass
+class FrameTruth:
+    rows: list[TruthRow]
+    motion_mask: np.ndarray  # (H, W) bool: visible pixels of targets moving in this frame
+
+
+def _clip(layer: Layer, width: int, height: int) -> tuple[tuple[slice, slice], tuple[slice, slice]] | None:
+    """(image slices, layer slices) of the part of `layer` inside the frame, or None."""
+    h, w = layer.mask.shape
+    xa, ya = max(layer.x0, 0), max(layer.y0, 0)
+    xb, yb = min(layer.x0 + w, width), min(layer.y0 + h, height)
+    if xa >= xb or ya >= yb:
+        return None
+    return (
+        (slice(ya, yb), slice(xa, xb)),
+        (slice(ya - layer.y0, yb - layer.y0), slice(xa - layer.x0, xb - layer.x0)),
+    )
+
+
+def _tight_box(pixels: np.ndarray, x_off: int, y_off: int) -> tuple[int, int, int, int]:
+    rows = np.flatnonzero(pixels.any(axis=1))
+    cols = np.flatnonzero(pixels.any(axis=0))
+    return (
+        x_off + int(cols[0]),
+        y_off + int(rows[0]),
+        int(cols[-1] - cols[0] + 1),
+        int(rows[-1] - rows[0] + 1),
+    )
+
+
+def frame_truth(
+    objects: list[ObjectPlan], layers: list[Layer | None], t: int, width: int, height: int
+) -> FrameTruth:
+    """Boxes, visibility and the motion mask of frame `t` from the objects' layers."""
+    order = sorted((k for k, lay in enumerate(layers) if lay is not None), key=lambda k: -layers[k].depth)
+    owner = np.zeros((height, width), dtype=np.int16)
+    clips = {}
+    for k in order:
+        clip = _clip(layers[k], width, height)
+        if clip is None:
+            continue
+        clips[k] = clip
+        img_sl, lay_sl = clip
+        owner[img_sl][layers[k].mask[lay_sl]] = k + 1
+    rows, moving_labels = [], []
+    for k, (img_sl, lay_sl) in sorted(clips.items()):
+        obj, layer = objects[k], layers[k]
+        amodal = layer.mask[lay_sl]
+        if not amodal.any():
+            continue
+        visible = owner[img_sl] == k + 1
+        n_visible = int(visible.sum())
+        box = _tight_box(visible if n_visible else amodal, img_sl[1].start, img_sl[0].start)
+        rows.append(
+            TruthRow(
+                id=obj.id,
+                class_id=obj.class_id,
+                static=obj.static,
+                x=box[0],
+                y=box[1],
+                w=box[2],
+                h=box[3],
+                visibility=n_visible / layer.area,
+                visible_px=n_visible,
+                occluded_px=int(amodal.sum()) - n_visible,
+            )
+        )
+        if not obj.static and obj.moving(t):
+            moving_labels.append(k + 1)
+    return FrameTruth(rows=rows, motion_mask=np.isin(owner, moving_labels))
+
+
+def _blur_kernel(velocity: np.ndarray, length: float) -> np.ndarray:
+    """A normalised line kernel of `length` pixels along `velocity`."""
+    half = int(np.ceil(length / 2))
+    size = 2 * half + 1
+    kernel = np.zeros((size, size), dtype=np.float32)
+    d = velocity / np.linalg.norm(velocity) * length / 2
+    scale = 1 << 4
+    p0 = np.round((np.array([half, half]) - d) * scale).astype(int)
+    p1 = np.round((np.array([half, half]) + d) * scale).astype(int)
+    cv2.line(kernel, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1.0, 1, cv2.LINE_AA, shift=4)
+    return kernel / kernel.sum()
+
+
+def _composite(radiance: np.ndarray, layer: Layer, velocity: np.ndarray, blur: float) -> None:
+    """Paint `layer` over `radiance` in place, smeared along `velocity` (px/frame) by the shutter time."""
+    length = blur * float(np.linalg.norm(velocity))
+    colour, alpha = layer.radiance, layer.mask.astype(np.float32)
+    x0, y0 = layer.x0, layer.y0
+    if length >= 1.0:
+        kernel = _blur_kernel(velocity, length)
+        pad = kernel.shape[0] // 2
+        colour = cv2.filter2D(cv2.copyMakeBorder(colour, pad, pad, pad, pad, cv2.BORDER_CONSTANT), -1, kernel)
+        alpha = cv2.filter2D(cv2.copyMakeBorder(alpha, pad, pad, pad, pad, cv2.BORDER_CONSTANT), -1, kernel)
+        x0, y0 = x0 - pad, y0 - pad
+    smeared = Layer(x0, y0, colour, alpha > 0, layer.depth)
+    clip = _clip(smeared, radiance.shape[1], radiance.shape[0])
+    if clip is None:
+        return
+    img_sl, lay_sl = clip
+    a = alpha[lay_sl][..., None]
+    radiance[img_sl] = radiance[img_sl] * (1.0 - a) + colour[lay_sl]
+
+
+class SequenceRenderer:
+    """Renders frame `t` of a plan: `render(t) -> (rgb uint8, FrameTruth)`, frames in any order."""
+
+    def __init__(self, plan: ScenePlan):
+        self.plan = plan
+        cam, p = plan.camera, plan.params
+        reach = np.abs(plan.slew) * plan.num_frames
+        self.pad = (int(np.ceil(reach[0])) + 2, int(np.ceil(reach[1])) + 2) if reach.any() else (0, 0)
+        sky_rng = np.random.default_rng([*plan.seed, 1])
+        self.sky = optics.sky_canvas(
+            sky_rng,
+            width=cam.width,
+            height=cam.height,
+            pad=self.pad,
+            stars_per_640x480=p.stars,
+            psf_sigma=p.psf_sigma_px,
+            planet=plan.planet,
+            sun_dir=plan.sun_dir,
+        )
+        self.stray = None
+        if plan.glare_uv is not None:
+            self.stray = optics.stray_light(
+                width=cam.width, height=cam.height, source_uv=plan.glare_uv, glare=p.glare, flare=p.flare
+            )
+
+    def offset(self, t: int) -> np.ndarray:
+        """Image displacement of the world at frame `t` due to camera slew."""
+        return self.plan.slew * t
+
+    def layers(self, t: int) -> list[Layer | None]:
+        plan, off = self.plan, self.offset(t)
+        out = []
+        for obj in plan.objects:
+            rot, pos = obj.pose(t, plan.camera)
+            out.append(
+                render_mesh(
+                    obj.mesh,
+                    rot,
+                    pos,
+                    plan.camera,
+                    sun_dir=plan.sun_dir,
+                    sun=plan.params.sun,
+                    ambient=plan.params.ambient,
+                    offset=(float(off[0]), float(off[1])),
+                )
+            )
+        return out
+
+    def truth(self, t: int, layers: list[Layer | None] | None = None) -> FrameTruth:
+        cam = self.plan.camera
+        return frame_truth(
+            self.plan.objects, self.layers(t) if layers is None else layers, t, cam.width, cam.height
+        )
+
+    def render(self, t: int) -> tuple[np.ndarray, FrameTruth]:
+        plan, p, cam = self.plan, self.plan.params, self.plan.camera
+        layers = self.layers(t)
+        radiance = optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
+        for k in sorted(
+            (k for k, lay in enumerate(layers) if lay is not None), key=lambda k: -layers[k].depth
+        ):
+            _composite(radiance, layers[k], plan.objects[k].image_velocity(t) + plan.slew, p.motion_blur)
+        if self.stray is not None:
+            radiance += self.stray
+        # a separate stream per frame keeps frames independent of rendering order
+        noise_rng = np.random.default_rng([*plan.seed, 2, t])
+        rgb = optics.sensor(
+            radiance,
+            noise_rng,
+            gain=float(plan.exposure[t]),
+            bloom=p.bloom,
+            psf_sigma=p.psf_sigma_px,
+            shot_noise=p.shot_noise,
+            read_noise_dn=p.read_noise_dn,
+            black_level_dn=p.black_level_dn,
+            hot_pixels=plan.hot_pixels,
+        )
+        return rgb, self.truth(t, layers)
+
+
+def longest_hidden_run(renderer: SequenceRenderer, obj_id: int) -> tuple[int, bool]:
+    """(longest run of frames with `obj_id` in the field but fully hidden, whether it is seen after that run)."""
+    hidden, seen = [], []
+    for t in range(renderer.plan.num_frames):
+        row = next((r for r in renderer.truth(t).rows if r.id == obj_id), None)
+        hidden.append(row is not None and row.visible_px == 0)
+        seen.append(row is not None and row.visible_px > 0)
+    best, end, run = 0, -1, 0
+    for t, is_hidden in enumerate(hidden):
+        run = run + 1 if is_hidden else 0
+        if run > best:
+            best, end = run, t
+    return best, best > 0 and any(seen[end + 1 :])
