@@ -1,0 +1,114 @@
+"""The paper's dynamic-target fusion detection (Fig. 8): a frame difference 'and' a background model.
+
+Both masks are smoothed (Gaussian filter, re-binarised) and closed (morphology), combined with a logical
+'and', split into regions (tiny ones dropped), their holes filled, and the result smoothed by a
+last Gaussian filter. The difference cannot keep a target that stopped, and the background model supplies
+the full body that the difference leaves hollow; the 'and' keeps only what both agree on, so light changes
+(which the difference's adaptive threshold ignores) and ghosts (which the background model does not have)
+both drop out.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import cv2
+import numpy as np
+
+from spacetrack.motion.blobs import Blob, find_blobs, outlines
+from spacetrack.motion.frames import MotionDetector
+
+
+def _smooth(mask: np.ndarray, ksize: int, level: int) -> np.ndarray:
+    """Gaussian-filter a 0/255 mask and re-binarise it: pixels above `level` (0-255) become 255."""
+    if ksize <= 1:
+        return mask
+    _, out = cv2.threshold(cv2.GaussianBlur(mask, (ksize, ksize), 0), level, 255, cv2.THRESH_BINARY)
+    return out
+
+
+def fill_regions(mask: np.ndarray, *, min_area: float = 0.0) -> np.ndarray:
+    """`mask` (0/255) with every hole filled and the regions enclosing < `min_area` px² dropped.
+
+    Drawing the outer outlines filled does both in one pass.
+    """
+    kept = outlines(mask, min_area=min_area)
+    return cv2.drawContours(np.zeros_like(mask), kept, -1, 255, thickness=cv2.FILLED)
+
+
+class Fusion:
+    """Streaming fusion of two detectors; latency = the larger of the two, masks are paired by frame.
+
+    Args:
+        difference: a frame-difference detector (the paper: `FiveFrameDifference`).
+        background: a background-model detector (the paper: `ViBe`).
+        blur_ksize: Gaussian kernel (odd pixels) applied to each input mask; 1 = none.
+        blur_level: re-binarisation level after that filter, 0-255 (below 128 grows a mask, above shrinks).
+        close_ksize: elliptical closing kernel (pixels) applied to each input mask; 1 = none.
+        min_area: regions enclosing less than this (square pixels) after the 'and' are dropped.
+        final_ksize: Gaussian kernel of the last smoothing (odd pixels); 1 = none.
+    """
+
+    def __init__(
+        self,
+        *,
+        difference: MotionDetector,
+        background: MotionDetector,
+        blur_ksize: int = 5,
+        blur_level: int = 127,
+        close_ksize: int = 5,
+        min_area: float = 4.0,
+        final_ksize: int = 5,
+    ) -> None:
+        for name, k in (("blur_ksize", blur_ksize), ("final_ksize", final_ksize)):
+            if k < 1 or k % 2 == 0:
+                raise ValueError(f"{name} must be an odd number of pixels >= 1, got {k}")
+        self.difference = difference
+        self.background = background
+        self.blur_ksize = blur_ksize
+        self.blur_level = blur_level
+        self.close_ksize = close_ksize
+        self.min_area = min_area
+        self.final_ksize = final_ksize
+        self.latency = max(difference.latency, background.latency)
+        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_ksize, close_ksize))
+        self.reset()
+
+    def reset(self) -> None:
+        self.difference.reset()
+        self.background.reset()
+        # (frame index, mask) of each detector, waiting until the other one has the same frame.
+        self._pending: tuple[deque, deque] = (deque(), deque())
+        self._mask_index = -1
+        self.blobs: list[Blob] = []
+
+    @property
+    def mask_index(self) -> int:
+        """0-based index of the frame the latest mask (and `blobs`) refer to."""
+        return self._mask_index
+
+    def apply(self, frame: np.ndarray) -> np.ndarray | None:
+        """Fused (H, W) uint8 mask (255 = moving) of frame `mask_index`, or None; also sets `blobs`."""
+        for queue, detector in zip(self._pending, (self.difference, self.background), strict=True):
+            mask = detector.apply(frame)
+            if mask is not None:
+                queue.append((detector.mask_index, mask))
+        first, second = self._pending
+        # A detector may start later than its latency says (it needs frames on both sides): skip the
+        # frames only one of them has a mask for.
+        while first and second and first[0][0] != second[0][0]:
+            (first if first[0][0] < second[0][0] else second).popleft()
+        if not (first and second):
+            return None
+        (self._mask_index, a), (_, b) = first.popleft(), second.popleft()
+        fused = cv2.bitwise_and(self._prepare(a), self._prepare(b))
+        fused = fill_regions(fused, min_area=self.min_area)
+        fused = _smooth(fused, self.final_ksize, 127)
+        self.blobs = find_blobs(fused, min_area=self.min_area)
+        return fused
+
+    def _prepare(self, mask: np.ndarray) -> np.ndarray:
+        mask = _smooth(mask, self.blur_ksize, self.blur_level)
+        if self.close_ksize > 1:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._kernel)
+        return mask

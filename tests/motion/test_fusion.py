@@ -1,0 +1,74 @@
+import numpy as np
+
+from spacetrack.motion import KNN, MOG2, FiveFrameDifference, Fusion, ViBe
+from spacetrack.motion.fusion import fill_regions
+
+
+def _fusion(**kwargs) -> Fusion:
+    return Fusion(difference=FiveFrameDifference(), background=ViBe(), **kwargs)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return (a & b).sum() / (a | b).sum()
+
+
+def test_square_moving_over_black_field_gives_one_blob_per_frame(scene, run):
+    frames, truth = scene(10)
+    fusion = _fusion()
+    assert fusion.latency == 2
+    masks = {}
+    for frame in frames:
+        mask = fusion.apply(frame)
+        if mask is not None:
+            masks[fusion.mask_index] = mask > 0
+            assert len(fusion.blobs) == 1
+            cx, cy = fusion.blobs[0].centroid
+            x, y = np.argwhere(truth[fusion.mask_index].T).mean(axis=0)
+            assert abs(cx - x) < 1 and abs(cy - y) < 1
+    assert sorted(masks) == list(range(2, 8))
+    # ViBe's ghost at the starting place (frame 0 is in its model) is not in the fusion
+    assert all(_iou(m, truth[t]) > 0.8 for t, m in masks.items())
+
+
+def test_flash_and_stop_leave_nothing(scene, run):
+    frames, _ = scene(12, velocity=(0, 0), flash_at=5)
+    assert not any(m.any() for m in run(_fusion(), frames).values())
+    frames, _ = scene(14, stop_at=5)
+    masks = run(_fusion(), frames)
+    assert masks[4].any()
+    assert not any(masks[t].any() for t in range(7, 12))
+
+
+def test_masks_of_detectors_with_different_start_are_paired_by_frame(scene):
+    frames, _ = scene(8)
+    fusion = Fusion(difference=FiveFrameDifference(), background=MOG2())
+    indices = []
+    for frame in frames:
+        if fusion.apply(frame) is not None:
+            indices.append(fusion.mask_index)
+    # the five-frame difference has its first mask at frame 2, once frame 4 is in
+    assert indices == [2, 3, 4, 5]
+    assert Fusion(difference=KNN(), background=ViBe()).latency == 0
+
+
+def test_fill_regions_fills_holes_and_drops_small_regions():
+    mask = np.zeros((12, 12), np.uint8)
+    mask[2:9, 2:9] = 255
+    mask[4:7, 4:7] = 0
+    mask[0:2, 10:12] = 255  # a 2x2 region: its outline encloses 1 px²
+    filled = fill_regions(mask, min_area=2)
+    assert (filled[2:9, 2:9] == 255).all()
+    assert filled.sum() == 49 * 255
+    assert (fill_regions(mask)[0:2, 10:12] == 255).all()
+
+
+def test_fusion_beats_its_parts_on_a_textured_target_with_stars(scene, run):
+    frames, truth = scene(40, size=10, velocity=(3, 1), stars=((5, 5), (80, 50), (40, 60)), noise=4.0)
+    scores = {}
+    for name, detector in (("five", FiveFrameDifference()), ("vibe", ViBe()), ("fusion", _fusion())):
+        masks = run(detector, frames)
+        tp = sum((m & truth[t]).sum() for t, m in masks.items())
+        fp = sum((m & ~truth[t]).sum() for t, m in masks.items())
+        fn = sum((~m & truth[t]).sum() for t, m in masks.items())
+        scores[name] = 2 * tp / (2 * tp + fp + fn)
+    assert scores["fusion"] > max(scores["five"], scores["vibe"])
