@@ -1,0 +1,185 @@
+"""Detector training data: frames and YOLO labels of the rendered dataset, letterboxed and augmented.
+
+A sample is a square letterboxed RGB uint8 image (size x size x 3) and its labels as an (N, 5) array
+of rows `class, cx, cy, w, h` normalised to that square. Augmentation (albumentations: HSV jitter,
+flips, scale/translate) is seeded by (seed, epoch, index), so an epoch is the same whatever the
+number of workers and whether the run was resumed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import albumentations as A
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from spacetrack.data.layout import frame_paths
+
+PAD_VALUE = 114
+Enhancer = Callable[[np.ndarray], np.ndarray]
+
+
+def read_labels(path: Path, num_classes: int) -> np.ndarray:
+    """(N, 5) float32 rows `class cx cy w h` of a YOLO label file, checked line by line.
+
+    A missing file is an error (the dataset writes an empty file for a frame without targets).
+    """
+    if not path.is_file():
+        raise FileNotFoundError(f"label file {path} is missing (a frame without targets has an empty file)")
+    rows = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = line.split()
+        if len(parts) != 5:
+            raise ValueError(f"{path} line {number}: expected 5 values 'class cx cy w h', got {line!r}")
+        try:
+            cls, cx, cy, w, h = (float(v) for v in parts)
+        except ValueError:
+            raise ValueError(f"{path} line {number}: non-numeric value in {line!r}") from None
+        if not cls.is_integer() or not 0 <= cls < num_classes:
+            raise ValueError(f"{path} line {number}: class {parts[0]} is outside 0..{num_classes - 1}")
+        if not (0 <= cx <= 1 and 0 <= cy <= 1 and 0 < w <= 1 and 0 < h <= 1):
+            raise ValueError(
+                f"{path} line {number}: box {parts[1:]} is not normalised (expected 0..1, w, h > 0)"
+            )
+        rows.append((cls, cx, cy, w, h))
+    return np.array(rows, dtype=np.float32).reshape(-1, 5)
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """RGB uint8 (H, W, 3) image at `path`; empty or unreadable files are an error naming the file."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None or bgr.size == 0:
+        raise ValueError(f"{path}: cannot read image (empty, corrupt or not an image)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def letterbox(image: np.ndarray, size: int) -> tuple[np.ndarray, float, tuple[int, int]]:
+    """Resize the longer side to `size` pixels and pad to size x size: (image, scale, (pad_x, pad_y))."""
+    h, w = image.shape[:2]
+    scale = size / max(h, w)
+    new_w, new_h = round(w * scale), round(h * scale)
+    if (new_w, new_h) != (w, h):
+        interpolation = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+        image = cv2.resize(image, (new_w, new_h), interpolation=interpolation)
+    pad_x, pad_y = (size - new_w) // 2, (size - new_h) // 2
+    out = np.full((size, size, 3), PAD_VALUE, dtype=np.uint8)
+    out[pad_y : pad_y + new_h, pad_x : pad_x + new_w] = image
+    return out, scale, (pad_x, pad_y)
+
+
+def letterbox_labels(
+    labels: np.ndarray, shape: tuple[int, int], scale: float, pad: tuple[int, int], size: int
+):
+    """Labels normalised to an (H, W) image -> normalised to its size x size letterbox."""
+    h, w = shape
+    out = labels.copy()
+    out[:, [1, 3]] = (labels[:, [1, 3]] * w * scale + np.array([pad[0], 0])) / size
+    out[:, [2, 4]] = (labels[:, [2, 4]] * h * scale + np.array([pad[1], 0])) / size
+    return out
+
+
+def build_augmentation(
+    *,
+    hue: float,
+    saturation: float,
+    value: float,
+    fliplr: float,
+    flipud: float,
+    scale: float,
+    translate: float,
+) -> A.Compose:
+    """HSV jitter (albumentations shift limits), flips (probabilities), scale and translate (fractions)."""
+    return A.Compose(
+        [
+            A.HueSaturationValue(
+                hue_shift_limit=hue, sat_shift_limit=saturation, val_shift_limit=value, p=0.5
+            ),
+            A.HorizontalFlip(p=fliplr),
+            A.VerticalFlip(p=flipud),
+            A.Affine(
+                scale=(1 - scale, 1 + scale),
+                translate_percent=(-translate, translate),
+                fill=PAD_VALUE,
+                p=0.5 if scale or translate else 0.0,
+            ),
+        ],
+        bbox_params=A.BboxParams(format="yolo", label_fields=["classes"], clip=True, min_visibility=0.3),
+    )
+
+
+def image_source(root: Path, sequences: Sequence[str], enhancer_name: str) -> tuple[str, bool]:
+    """(image folder, whether to enhance on the fly): a pre-enhanced `img_<name>` folder is preferred."""
+    if enhancer_name == "none":
+        return "img", False
+    folder = f"img_{enhancer_name}"
+    if all((root / seq / folder).is_dir() for seq in sequences):
+        return folder, False
+    return "img", True
+
+
+class YoloDataset(Dataset):
+    """Frames of `sequences` under `root` (every `frame_stride`-th), letterboxed to `image_size` pixels."""
+
+    def __init__(
+        self,
+        *,
+        root: str | Path,
+        sequences: Sequence[str],
+        num_classes: int,
+        image_size: int,
+        image_dir: str = "img",
+        enhancer: Enhancer | None = None,
+        frame_stride: int = 1,
+        augment: A.Compose | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.root = Path(root)
+        self.image_size = image_size
+        self.enhancer = enhancer
+        self.augment = augment
+        self.seed = seed
+        self.epoch = 0
+        self.images: list[Path] = []
+        self.labels: list[np.ndarray] = []
+        for seq in sequences:
+            for path in frame_paths(self.root, seq, image_dir)[::frame_stride]:
+                self.images.append(path)
+                self.labels.append(read_labels(self.root / seq / "labels" / f"{path.stem}.txt", num_classes))
+        if not self.images:
+            raise ValueError(f"no frames in {root} for sequences {list(sequences)}")
+
+    def set_epoch(self, epoch: int) -> None:
+        """Choose the augmentation draws of `epoch` (call before iterating a loader over this dataset)."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        image = read_rgb(self.images[index])
+        if self.enhancer is not None:
+            image = self.enhancer(image)
+        boxed, scale, pad = letterbox(image, self.image_size)
+        labels = letterbox_labels(self.labels[index], image.shape[:2], scale, pad, self.image_size)
+        if self.augment is not None:
+            seed = np.random.SeedSequence([self.seed, self.epoch, index]).generate_state(1)[0]
+            self.augment.set_random_seed(int(seed))
+            out = self.augment(image=boxed, bboxes=labels[:, 1:], classes=labels[:, 0])
+            boxed = out["image"]
+            labels = np.column_stack((out["classes"], out["bboxes"])).astype(np.float32).reshape(-1, 5)
+        return boxed, labels
+
+
+def collate(batch: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Images (B, 3, S, S) uint8 and targets (M, 6) rows `image_index, class, cx, cy, w, h` (normalised)."""
+    images = torch.from_numpy(np.stack([img for img, _ in batch])).permute(0, 3, 1, 2).contiguous()
+    targets = [
+        np.column_stack((np.full(len(lab), i, dtype=np.float32), lab)) for i, (_, lab) in enumerate(batch)
+    ]
+    return images, torch.from_numpy(np.concatenate(targets).reshape(-1, 6))
