@@ -13,3 +13,11 @@ CONF_DIR = REPO_ROOT / "conf"
 def resolved_dict(cfg: DictConfig) -> dict:
     """The config with every interpolation resolved, as plain containers (for logging and manifests)."""
     return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=False)  # type: ignore[return-value]
+
+
+def compose_config(config_name: str, overrides: list[str] | None = None) -> DictConfig:
+    """The root config `config_name` from conf/ with command-line style `overrides` (for notebooks and tests)."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        return compose(config_name, overrides=overrides or [])

@@ -1,0 +1,158 @@
+"""The renderer's ground truth checked against an independent reading of the same silhouettes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from spacetrack.build_data import make_plan
+from spacetrack.data.raster import Camera
+from spacetrack.data.render import SequenceRenderer
+from spacetrack.data.scenario import scenario_params
+from spacetrack.data.scene import plan_sequence
+
+CAMERA = Camera.from_fov(320, 240, 40.0)
+
+
+def _plan(scenario: str, overrides: dict, seed: int, num_frames: int = 48):
+    params = scenario_params(scenario, OmegaConf.create(overrides))
+    spec = {"name": f"t_{scenario}", "scenario": scenario, "seed": [seed, 0]}
+    return make_plan(spec, params, CAMERA, num_frames)
+
+
+def visible_pixels(renderer: SequenceRenderer, t: int) -> dict[int, np.ndarray]:
+    """Per object id, a full-frame boolean image of the pixels it shows: its silhouette inside the frame
+    minus the silhouettes of every object nearer to the camera (painted independently of the renderer)."""
+    layers = renderer.layers(t)
+    full = {}
+    for obj, layer in zip(renderer.plan.objects, layers, strict=True):
+        if layer is None:
+            continue
+        ys, xs = np.nonzero(layer.mask)
+        ys, xs = ys + layer.y0, xs + layer.x0
+        keep = (ys >= 0) & (ys < CAMERA.height) & (xs >= 0) & (xs < CAMERA.width)
+        canvas = np.zeros((CAMERA.height, CAMERA.width), dtype=bool)
+        canvas[ys[keep], xs[keep]] = True
+        full[obj.id] = (canvas, layer.depth, layer.area)
+    out = {}
+    for oid, (mask, depth, area) in full.items():
+        nearer = [m for other, (m, d, _) in full.items() if other != oid and d < depth]
+        hidden = np.logical_or.reduce(nearer) if nearer else np.zeros_like(mask)
+        out[oid] = (mask & ~hidden, mask, area)
+    return out
+
+
+def tight_box(pixels: np.ndarray) -> tuple[int, int, int, int]:
+    ys, xs = np.nonzero(pixels)
+    return int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)
+
+
+@pytest.mark.parametrize(
+    "scenario,overrides",
+    [("multi_target", {"num_targets": [6, 6]}), ("slew", {"num_static": [2, 2], "slew_px": [2.0, 2.0]})],
+)
+def test_boxes_and_visibility_match_an_independent_composite(scenario, overrides):
+    renderer = SequenceRenderer(_plan(scenario, overrides, seed=5))
+    checked = 0
+    for t in range(0, 48, 4):
+        truth = renderer.truth(t)
+        expected = visible_pixels(renderer, t)
+        rows = {r.id: r for r in truth.rows}
+        in_frame = {oid for oid, (_, amodal, _) in expected.items() if amodal.any()}
+        assert set(rows) == in_frame, (
+            f"frame {t}: rows for {sorted(rows)}, objects in frame {sorted(in_frame)}"
+        )
+        for oid, (visible, amodal, area) in expected.items():
+            if oid not in rows:
+                continue
+            row = rows[oid]
+            assert row.visible_px == int(visible.sum())
+            assert row.visibility == pytest.approx(visible.sum() / area)
+            box = tight_box(visible) if visible.any() else tight_box(amodal)
+            assert (row.x, row.y, row.w, row.h) == box, f"frame {t} id {oid}"
+            checked += 1
+        moving_now = [
+            o.id for o in renderer.plan.objects if not o.static and o.moving(t) and o.id in expected
+        ]
+        expected_mask = np.logical_or.reduce(
+            [expected[i][0] for i in moving_now] + [np.zeros_like(truth.motion_mask)]
+        )
+        np.testing.assert_array_equal(truth.motion_mask, expected_mask)
+    assert checked > 20
+
+
+def test_static_objects_never_in_motion_masks_even_when_the_camera_slews():
+    plan = _plan("slew", {"num_static": [2, 2], "slew_px": [2.5, 2.5]}, seed=11)
+    renderer = SequenceRenderer(plan)
+    statics = [o.id for o in plan.static]
+    assert len(statics) == 2 and np.linalg.norm(plan.slew) > 1.0
+    seen_static = 0
+    for t in range(0, 48, 3):
+        expected = visible_pixels(renderer, t)
+        mask = renderer.truth(t).motion_mask
+        for sid in statics:
+            if sid in expected:
+                seen_static += int(expected[sid][0].sum())
+                assert not (mask & expected[sid][0]).any(), (
+                    f"frame {t}: static object {sid} in the motion mask"
+                )
+    assert seen_static > 100  # the static objects were really in view
+
+
+def test_stopped_target_leaves_the_motion_mask_but_not_the_ground_truth():
+    params = scenario_params(
+        "stop", OmegaConf.create({"num_targets": [1, 1], "stop_prob": 1.0, "stop_frames": [15, 15]})
+    )
+    plan = None
+    for seed in range(20):
+        candidate = plan_sequence(
+            name="s", scenario="stop", params=params, camera=CAMERA, num_frames=60, seed=[seed]
+        )
+        obj = candidate.objects[0]
+        still = [t for t in range(60) if not obj.moving(t)]
+        if still and all(0 <= c < d for c, d in zip(obj.centre(still[0]), (320, 240), strict=True)):
+            plan = candidate
+            break
+    assert plan is not None
+    renderer = SequenceRenderer(plan)
+    t = still[len(still) // 2]
+    truth = renderer.truth(t)
+    assert [r.id for r in truth.rows] == [1] and truth.rows[0].visible_px > 0
+    assert not truth.motion_mask.any()
+    moving_t = next(t for t in range(60) if plan.objects[0].moving(t) and renderer.truth(t).rows)
+    assert renderer.truth(moving_t).motion_mask.any()
+
+
+def test_occluded_target_is_fully_hidden_for_ten_frames_then_reappears():
+    plan = _plan("occlusion", {"occlusion_pair": True, "num_targets": [0, 0]}, seed=3)
+    renderer = SequenceRenderer(plan)
+    vis = []
+    for t in range(plan.num_frames):
+        row = next((r for r in renderer.truth(t).rows if r.id == 2), None)
+        vis.append(None if row is None else row.visibility)
+    hidden = [t for t, v in enumerate(vis) if v == 0.0]
+    assert len(hidden) >= 10
+    runs = np.split(np.array(hidden), np.flatnonzero(np.diff(hidden) > 1) + 1)
+    longest = max(runs, key=len)
+    assert len(longest) >= 10
+    assert any(v is not None and v > 0 for v in vis[longest[-1] + 1 :]), "the hidden target never re-appears"
+    assert any(v is not None and v > 0 for v in vis[: longest[0]]), "the target was never seen before hiding"
+
+
+def test_night_side_is_as_black_as_space():
+    params = scenario_params("side", OmegaConf.create({"num_targets": [1, 1], "sun_phase_deg": [95.0, 95.0]}))
+    plan = plan_sequence(name="s", scenario="side", params=params, camera=CAMERA, num_frames=10, seed=[4])
+    layer = SequenceRenderer(plan).layers(0)[0]
+    inside = layer.radiance[layer.mask]
+    dark = (inside.max(axis=1) == 0).mean()
+    lit = (inside.max(axis=1) > 0.05).mean()
+    assert dark > 0.1 and lit > 0.05, f"dark fraction {dark:.2f}, lit fraction {lit:.2f}"
+
+
+def test_targets_turn_over_time():
+    plan = _plan("nominal", {"num_targets": [1, 1], "stop_prob": 0.0}, seed=2)
+    obj = plan.objects[0]
+    r0, _ = obj.pose(0, CAMERA)
+    r1, _ = obj.pose(20, CAMERA)
+    assert np.degrees(np.arccos(np.clip((np.trace(r0.T @ r1) - 1) / 2, -1, 1))) > 5.0
