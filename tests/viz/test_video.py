@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
@@ -47,6 +48,9 @@ def test_clip_reads_back_with_its_frame_count_size_and_content(tmp_path: Path) -
     assert fourcc in {"avc1", "h264"}
     assert fps == pytest.approx(10.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask, "a clip gets the usual file permissions"
 
 
 def test_odd_sizes_are_padded_to_even(tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ import contextlib
 import os
 import subprocess
 import tempfile
+import uuid
 from collections.abc import Iterator
 from fractions import Fraction
 from pathlib import Path
@@ -52,9 +53,8 @@ class VideoWriter:
             raise FileNotFoundError(
                 f"output folder {self.path.parent} does not exist (writing {self.path.name})"
             )
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        os.close(fd)
-        self._tmp = Path(tmp_name)
+        # ffmpeg creates the file itself, so it gets the usual permissions (mkstemp's would be 0600).
+        self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
         width, height = self.size
         fps = str(Fraction(self.fps).limit_denominator(1001))
         command = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error"]
