@@ -9,25 +9,26 @@ import numpy as np
 
 def tlwh_to_xyah(tlwh: np.ndarray) -> np.ndarray:
     """(..., 4) boxes `tlwh` (top-left x, y, width, height; pixels) -> `xyah` (centre, aspect w/h, height)."""
-    tlwh = np.asarray(tlwh, dtype=float)
-    x, y, w, h = np.moveaxis(tlwh, -1, 0)
-    return np.stack([x + w / 2, y + h / 2, w / h, h], -1)
+    xyah = np.array(tlwh, dtype=float)
+    xyah[..., :2] += xyah[..., 2:] / 2
+    xyah[..., 2] /= xyah[..., 3]
+    return xyah
 
 
 def xyah_to_tlwh(xyah: np.ndarray) -> np.ndarray:
     """(..., 4) boxes `xyah` -> `tlwh`."""
-    xyah = np.asarray(xyah, dtype=float)
-    cx, cy, a, h = np.moveaxis(xyah, -1, 0)
-    w = a * h
-    return np.stack([cx - w / 2, cy - h / 2, w, h], -1)
+    tlwh = np.array(xyah, dtype=float)
+    tlwh[..., 2] *= tlwh[..., 3]
+    tlwh[..., :2] -= tlwh[..., 2:] / 2
+    return tlwh
 
 
 @dataclass(frozen=True)
 class Detections:
     """N detections of one frame.
 
-    tlwh: (N, 4) boxes in pixels; confidence: (N,); feature: (N, D) appearance vectors, L2-normalised
-    here so that the cosine distance is 1 - dot product (D may be 0 when no appearance is used).
+    tlwh: (N, 4) boxes in pixels; confidence: (N,); feature: (N, D) appearance vectors (None: D = 0),
+    L2-normalised here so that the cosine distance is 1 - dot product (D may be 0 when no appearance is used).
     """
 
     tlwh: np.ndarray
@@ -42,7 +43,7 @@ class Detections:
         confidence = np.asarray(confidence, dtype=float).reshape(-1)
         if feature is None:
             feature = np.zeros((len(tlwh), 0))
-        feature = np.asarray(feature, dtype=float).reshape(len(tlwh), -1)
+        feature = np.asarray(feature, dtype=float)
         if feature.shape[1]:
             norm = np.linalg.norm(feature, axis=1, keepdims=True)
             feature = feature / np.where(norm > 0, norm, 1.0)

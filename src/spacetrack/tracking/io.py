@@ -57,6 +57,9 @@ def load_detections(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"detection file {path} not found")
+    with path.open("rb") as f:
+        if f.read(6) != b"\x93NUMPY":
+            raise DetectionFileError(f"{path}: not a readable .npy file (no NumPy header); expected {LAYOUT}")
     try:
         dets = np.load(path, allow_pickle=False)
     except ValueError as err:

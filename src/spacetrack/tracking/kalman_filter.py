@@ -49,9 +49,9 @@ class KalmanFilter:
         """Mean (8,) and covariance (8, 8) of a new track at `measurement` (`xyah`), velocities zero."""
         measurement = np.asarray(measurement, dtype=float)
         mean = np.concatenate([measurement, np.zeros(_NDIM)])
-        h = measurement[3]
-        # A fresh track is twice (position) and ten times (velocity) as uncertain as the process noise.
-        std = np.concatenate([2 * _position_std(h, 1e-2), 10 * _velocity_std(h)])
+        p, v = 2 * _STD_POSITION * measurement[3], 10 * _STD_VELOCITY * measurement[3]
+        # Twice (position) and ten times (velocity) the process noise; the aspect ratio's stays fixed.
+        std = np.array([p, p, 1e-2, p, v, v, 1e-5, v])
         return mean, _diag(std)
 
     def predict(self, mean: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,7 +1,11 @@
 """Appearance metric (eq. 13): the smallest cosine distance between a detection and a track's gallery.
 
-Each confirmed track keeps its last `nn_budget` appearance features (its gallery R_n). All galleries are
-stacked into one matrix so that a whole cost matrix is one matrix product and one segmented minimum.
+Each confirmed track keeps its last `nn_budget` appearance features (its gallery R_n). All galleries
+live in one preallocated bank (slot per track x gallery row x feature) used as ring buffers, so a whole
+cost matrix is one matrix product and one masked minimum, and adding a frame's features copies nothing
+else. The minimum depends neither on the order within a gallery nor on repeats, so overwriting the
+oldest row in place gives the same distances as keeping the latest `nn_budget` in order, and the rows a
+gallery has not filled yet hold copies of its first feature instead of needing a mask.
 """
 
 from __future__ import annotations
@@ -18,37 +22,80 @@ class NearestNeighborDistanceMetric:
     """
 
     def __init__(self, *, max_cosine_distance: float, nn_budget: int | None = None) -> None:
+        if nn_budget is not None and nn_budget < 1:
+            raise ValueError(f"nn_budget must be a positive number of features or None, got {nn_budget}")
         self.matching_threshold = float(max_cosine_distance)
         self.budget = nn_budget
-        self.samples: dict[int, np.ndarray] = {}
-        self._stack = np.zeros((0, 0))
-        self._slices: dict[int, tuple[int, int]] = {}
+        self._slot: dict[int, int] = {}  # track id -> slot in the bank
+        self._bank = np.zeros((0, 0, 0))  # (slots, gallery capacity, D)
+        self._count = np.zeros(0, dtype=int)  # features ever added to each slot's gallery
+
+    def samples(self, target: int) -> np.ndarray:
+        """The gallery of track `target`, (n, D), in storage order."""
+        slot = self._slot[target]
+        return self._bank[slot, : min(self._count[slot], self._bank.shape[1])]
 
     def partial_fit(self, features: np.ndarray, targets: np.ndarray, active_targets: list[int]) -> None:
         """Append `features` (N, D) to the galleries of `targets` (N,); forget every track not active."""
-        galleries = {k: [self.samples[k]] for k in active_targets if k in self.samples}
+        active = set(active_targets)
+        for target in [t for t in self._slot if t not in active]:
+            self._count[self._slot.pop(target)] = 0
+        features = np.asarray(features, dtype=float)
+        targets = np.asarray(targets, dtype=int)
+        if not len(targets):
+            return
+        self._reserve(features.shape[1], len(set(self._slot) | set(targets.tolist())))
         for target in np.unique(targets):
-            galleries.setdefault(int(target), []).append(features[targets == target])
-        self.samples = {}
-        for k in active_targets:
-            if k in galleries:
-                gallery = np.concatenate(galleries[k])
-                self.samples[k] = gallery if self.budget is None else gallery[-self.budget :]
-        self._restack()
+            new = features[targets == target]
+            slot = self._slot.get(int(target))
+            if slot is None:
+                slot = self._slot[int(target)] = self._free_slot()
+            self._append(slot, new)
 
-    def _restack(self) -> None:
-        sizes = [len(s) for s in self.samples.values()]
-        ends = np.cumsum(sizes)
-        self._slices = {k: (int(e - n), int(e)) for k, n, e in zip(self.samples, sizes, ends, strict=True)}
-        self._stack = np.concatenate(list(self.samples.values())) if self.samples else np.zeros((0, 0))
+    def _free_slot(self) -> int:
+        used = np.zeros(len(self._bank), bool)
+        used[list(self._slot.values())] = True
+        return int(np.flatnonzero(~used)[0])
+
+    def _reserve(self, dim: int, num_slots: int) -> None:
+        """Grow the bank (doubling) to hold `num_slots` galleries of `dim`-dim features."""
+        slots, capacity, _ = self._bank.shape
+        if not capacity:
+            capacity = self.budget or 16
+        if num_slots > slots or not self._bank.size:
+            self._resize(max(num_slots, 2 * slots, 8), capacity, dim)
+
+    def _resize(self, slots: int, capacity: int, dim: int) -> None:
+        bank = np.zeros((slots, capacity, dim))
+        old_slots, old_capacity, _ = self._bank.shape
+        if self._bank.size:
+            bank[:old_slots, :old_capacity] = self._bank
+            bank[:old_slots, old_capacity:] = self._bank[:, :1]  # unfilled rows repeat the first feature
+        count = np.zeros(slots, dtype=int)
+        count[:old_slots] = self._count
+        self._bank, self._count = bank, count
+
+    def _append(self, slot: int, new: np.ndarray) -> None:
+        if self.budget is not None:
+            new = new[-self.budget :]
+        capacity = self._bank.shape[1]
+        if self.budget is None and self._count[slot] + len(new) > capacity:
+            # Unbounded galleries: make room by doubling the capacity of every slot.
+            needed = self._count[slot] + len(new)
+            self._resize(len(self._bank), max(needed, 2 * capacity), self._bank.shape[2])
+            capacity = self._bank.shape[1]
+        if not self._count[slot]:
+            self._bank[slot] = new[0]  # unfilled rows repeat the first feature
+        rows = (self._count[slot] + np.arange(len(new))) % capacity
+        self._bank[slot, rows] = new
+        self._count[slot] += len(new)
 
     def distance(self, features: np.ndarray, targets: list[int]) -> np.ndarray:
         """(len(targets), N) matrix of eq. (13): min over each target's gallery of 1 - r_m . r_k."""
         features = np.asarray(features, dtype=float)
         if not len(targets) or not len(features):
             return np.zeros((len(targets), len(features)))
-        spans = [self._slices[t] for t in targets]
-        rows = np.concatenate([np.arange(a, b) for a, b in spans])
-        starts = np.cumsum([0] + [b - a for a, b in spans[:-1]])
-        distances = 1.0 - self._stack[rows] @ features.T
-        return np.minimum.reduceat(distances, starts, axis=0)
+        slots = np.array([self._slot[t] for t in targets])
+        slots_used, capacity, dim = self._bank[: slots.max() + 1].shape
+        similarity = self._bank[:slots_used].reshape(-1, dim) @ features.T
+        return 1.0 - similarity.reshape(slots_used, capacity, -1).max(axis=1)[slots]

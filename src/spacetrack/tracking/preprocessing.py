@@ -14,17 +14,21 @@ def non_max_suppression(tlwh: np.ndarray, scores: np.ndarray, max_overlap: float
     >= 1 nothing is dropped and only the order changes.
     """
     tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
+    order = np.argsort(scores)[::-1]  # the reference's sort, so equal scores break ties the same way
+    if max_overlap >= 1.0:
+        return order  # an overlap never exceeds 1
     x1, y1 = tlwh[:, 0], tlwh[:, 1]
     x2, y2 = x1 + tlwh[:, 2], y1 + tlwh[:, 3]
     area = (x2 - x1 + 1) * (y2 - y1 + 1)
-    order = np.argsort(scores)  # ascending; the reference's sort, so ties break the same way
+    w = np.maximum(0.0, np.minimum(x2[:, None], x2[None]) - np.maximum(x1[:, None], x1[None]) + 1)
+    h = np.maximum(0.0, np.minimum(y2[:, None], y2[None]) - np.maximum(y1[:, None], y1[None]) + 1)
+    covers = (w * h) / area[None, :] > max_overlap  # covers[i, j]: box i suppresses box j
+    suppressed = np.zeros(len(tlwh), bool)
     keep = []
-    while len(order):
-        best, rest = order[-1], order[:-1]
-        keep.append(best)
-        w = np.maximum(0.0, np.minimum(x2[best], x2[rest]) - np.maximum(x1[best], x1[rest]) + 1)
-        h = np.maximum(0.0, np.minimum(y2[best], y2[rest]) - np.maximum(y1[best], y1[rest]) + 1)
-        order = rest[(w * h) / area[rest] <= max_overlap]
+    for i in order:
+        if not suppressed[i]:
+            keep.append(i)
+            suppressed |= covers[i]
     return np.asarray(keep, dtype=int)
 
 
