@@ -102,16 +102,18 @@ def wavelet_brighten(
     finest_diagonal = coeffs[-1][2]
     sigma = float(np.median(np.abs(finest_diagonal[_SUB]))) / 0.6745
     threshold = detail_threshold * sigma
-    gain = np.float32(detail_gain)
-    for k in range(1, len(coeffs)):
-        # pywt's soft threshold divides by the magnitude: with a zero threshold it would produce NaN on
-        # zero coefficients, and it would change nothing anyway.
-        if threshold > 0:
-            coeffs[k] = tuple(pywt.threshold(d, threshold, "soft") * gain for d in coeffs[k])
-        else:
-            coeffs[k] = tuple(d * gain for d in coeffs[k])
+    coeffs[1:] = [tuple(soft_threshold(d, threshold, detail_gain) for d in bands) for bands in coeffs[1:]]
     out = pywt.waverec2(coeffs, wavelet, mode="symmetric")[:rows, :cols]
     return np.clip(out, 0.0, 1.0).astype(np.float32, copy=False)
+
+
+def soft_threshold(d: np.ndarray, threshold: float, gain: float) -> np.ndarray:
+    """`gain * sign(d) * max(|d| - threshold, 0)`, written as d - clip(d, -t, t): two passes and no
+    division (pywt.threshold divides by |d|, which is slower and gives NaN at d = 0 with t = 0)."""
+    out = np.clip(d, -threshold, threshold)
+    np.subtract(d, out, out=out)
+    out *= np.float32(gain)
+    return out
 
 
 def bilateral(
@@ -152,19 +154,18 @@ def adjust_hue_saturation(
     hue_sigma: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """New (hue in degrees, saturation in [0, 1]) from their correlation with V; see the module docstring."""
-    cos_h, sin_h = cv2.polarToCart(None, h, angleInDegrees=True)
-    r_hv = circular_linear_correlation(cos_h[_SUB], sin_h[_SUB], v_in[_SUB])
+    radians = np.deg2rad(h[_SUB])
+    r_hv = circular_linear_correlation(np.cos(radians), np.sin(radians), v_in[_SUB])
     r_sv = pearson(s[_SUB], v_in[_SUB])
     weight = hue_smoothing * (1.0 - r_hv)
     if weight > 0:
-        cx, cy = cos_h * s, sin_h * s
-        keep, blend = np.float32(1.0 - weight), np.float32(weight)
-        cx = keep * cx + blend * cv2.GaussianBlur(cx, (0, 0), hue_sigma)
-        cy = keep * cy + blend * cv2.GaussianBlur(cy, (0, 0), hue_sigma)
+        cx, cy = cv2.polarToCart(s, h, angleInDegrees=True)  # the chroma vector S * (cos H, sin H)
+        cx = cv2.addWeighted(cx, 1.0 - weight, cv2.GaussianBlur(cx, (0, 0), hue_sigma), weight, 0.0)
+        cy = cv2.addWeighted(cy, 1.0 - weight, cv2.GaussianBlur(cy, (0, 0), hue_sigma), weight, 0.0)
         s, h = cv2.cartToPolar(cx, cy, angleInDegrees=True)
     exponent = saturation_coupling * r_sv
     if exponent != 0:
-        s = s * cv2.pow((v_out + _EPS) / (v_in + _EPS), exponent)
+        s = cv2.multiply(s, cv2.pow(cv2.divide(v_out + _EPS, v_in + _EPS), exponent))
     return h, np.clip(s, 0.0, 1.0)
 
 
@@ -196,7 +197,7 @@ class DwtHsvEnhancer:
     name: ClassVar[str] = "dwt_hsv"
 
     wavelet: str = "haar"
-    level: int = 2
+    level: int = 3
     target_mean: float = 0.3
     gamma_min: float = 0.5
     detail_gain: float = 1.5
