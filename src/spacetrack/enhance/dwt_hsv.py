@@ -54,8 +54,9 @@ _BINS = 4096
 
 def to_hsv(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """RGB uint8 (H, W, 3) -> (hue in degrees [0, 360), saturation [0, 1], value [0, 1]), float32 each."""
-    hsv = cv2.cvtColor(rgb.astype(np.float32) * np.float32(1 / 255), cv2.COLOR_RGB2HSV)
-    h, s, v = cv2.split(hsv)
+    # Hue and saturation do not depend on the scale of RGB: only V needs dividing by 255.
+    h, s, v = cv2.split(cv2.cvtColor(rgb.astype(np.float32), cv2.COLOR_RGB2HSV))
+    v *= np.float32(1 / 255)
     return h, s, v
 
 
