@@ -1,9 +1,10 @@
+"""Tiny datasets and models for the detector tests."""
+
 import json
 from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.models.yolo import YOLOv5
@@ -45,11 +46,6 @@ def write_tiny_dataset(root: Path, num_folds: int = 9) -> Path:
     }
     (root / "manifest.json").write_text(json.dumps(manifest))
     return root
-
-
-@pytest.fixture
-def tiny_dataset(tmp_path: Path) -> Path:
-    return write_tiny_dataset(tmp_path / "tiny")
 
 
 def tiny_model(**kwargs) -> YOLOv5:

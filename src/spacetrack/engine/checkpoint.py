@@ -1,0 +1,57 @@
+"""Detector checkpoints: written atomically, with the architecture and training settings that made them.
+
+A checkpoint is a dict with `arch` (the YOLOv5 constructor keywords), `model` and `ema` state dicts,
+`ema_updates`, `optimizer`, `scaler`, `epoch` (last finished, 0-based), `best_fitness`, `history`
+(metrics per epoch) and `settings` (the trainer's keywords). Loading one for another architecture,
+or resuming with other settings, is an error that names what differs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from spacetrack.io import atomic_path
+from spacetrack.models.yolo import YOLOv5
+
+
+def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
+    """Write `state` to `path`; a crash mid-write leaves the previous file intact."""
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def differences(found: dict[str, Any], expected: dict[str, Any]) -> str:
+    """'key: checkpoint X, configured Y' for every key whose values differ."""
+    keys = sorted(set(found) | set(expected))
+    return "; ".join(
+        f"{k}: checkpoint {found.get(k)!r}, configured {expected.get(k)!r}"
+        for k in keys
+        if found.get(k) != expected.get(k)
+    )
+
+
+def load_checkpoint(path: str | Path, *, arch: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Read a checkpoint (on the CPU); with `arch`, refuse one made for a different architecture."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} not found")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:
+        raise ValueError(f"{path} is not a readable checkpoint: {err}") from err
+    if not isinstance(state, dict) or "arch" not in state or "ema" not in state:
+        raise ValueError(f"{path} is not a spacetrack detector checkpoint (no 'arch' and 'ema' entries)")
+    if arch is not None and state["arch"] != arch:
+        raise ValueError(f"{path} was trained for another architecture: {differences(state['arch'], arch)}")
+    return state
+
+
+def load_detector(path: str | Path) -> YOLOv5:
+    """The EMA weights of a checkpoint in a model built from its own `arch`, in eval mode."""
+    state = load_checkpoint(path)
+    model = YOLOv5(**state["arch"])
+    model.load_state_dict(state["ema"])
+    return model.eval()

@@ -1,0 +1,208 @@
+"""The detector training loop: epochs of SGD with warm-up and EMA, validation, best/last checkpoints.
+
+Everything random in an epoch (sample order, augmentation) is drawn from (seed, epoch), gradients never
+cross an epoch boundary and the checkpoint holds the full optimiser, EMA and scaler state, so resuming
+from `last.pt` after a kill gives the same weights as a run that was never interrupted.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+from torch.utils.data import DataLoader
+
+from spacetrack.data.yolo_dataset import YoloDataset, collate
+from spacetrack.engine.checkpoint import differences, load_checkpoint, save_checkpoint
+from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
+from spacetrack.engine.validate import evaluate
+
+EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
+
+
+def resolve_device(device: str) -> torch.device:
+    """`auto` is the first GPU when there is one, else the CPU; anything else is passed to torch."""
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def fitness(metrics: dict[str, float]) -> float:
+    """What `best.pt` maximises: mostly mAP@0.5:0.95, a little mAP@0.5."""
+    return 0.1 * metrics["map50"] + 0.9 * metrics["map50_95"]
+
+
+class Trainer:
+    """Keyword arguments are the keys of `train.trainer` in the config; rates are per optimiser step."""
+
+    def __init__(
+        self,
+        *,
+        epochs: int,
+        batch_size: int,
+        workers: int = 0,
+        lr0: float = 0.01,
+        lrf: float = 0.01,
+        schedule: str = "linear",
+        momentum: float = 0.937,
+        weight_decay: float = 5e-4,
+        nbs: int = 64,
+        warmup_epochs: float = 3.0,
+        warmup_momentum: float = 0.8,
+        warmup_bias_lr: float = 0.1,
+        ema_decay: float = 0.9999,
+        ema_tau: float = 2000.0,
+        grad_clip: float = 10.0,
+        amp: bool = True,
+        device: str = "auto",
+        seed: int = 0,
+        conf_threshold: float = 0.001,
+        iou_threshold: float = 0.6,
+        max_det: int = 300,
+    ) -> None:
+        self.settings = {k: v for k, v in locals().items() if k != "self"}
+        for key, value in self.settings.items():
+            setattr(self, key, value)
+        lr_factor(0, epochs=epochs, lrf=lrf, schedule=schedule)  # reject an unknown schedule now
+
+    def fit(
+        self,
+        *,
+        model: nn.Module,
+        loss_fn: Callable,
+        train_set: YoloDataset,
+        val_set: YoloDataset,
+        out_dir: str | Path,
+        resume_from: str | Path | None = None,
+        run_settings: dict[str, Any] | None = None,
+        on_epoch_end: EpochCallback | None = None,
+    ) -> dict[str, Any]:
+        """Train `model` in place; return `history`, `best_fitness` and the checkpoint paths.
+
+        `run_settings` (data, image size, augmentation...) are stored with the trainer's settings; a
+        resume with any of them changed is refused.
+        """
+        device = resolve_device(self.device)
+        model.to(device)
+        settings = {**self.settings, **(run_settings or {})}
+        accumulate = max(round(self.nbs / self.batch_size), 1)
+        decay = self.weight_decay * self.batch_size * accumulate / self.nbs
+        optimizer = build_optimizer(model, lr0=self.lr0, momentum=self.momentum, weight_decay=decay)
+        ema = ModelEMA(model, decay=self.ema_decay, tau=self.ema_tau)
+        scaler = torch.amp.GradScaler("cuda", enabled=self.amp and device.type == "cuda")
+        start_epoch, best, history = 0, -1.0, []
+        if resume_from is not None:
+            state = load_checkpoint(resume_from, arch=model.arch)
+            if state["settings"] != settings:
+                raise ValueError(
+                    f"cannot resume {resume_from} with other settings: {differences(state['settings'], settings)}"
+                )
+            model.load_state_dict(state["model"])
+            ema.module.load_state_dict(state["ema"])
+            ema.updates = state["ema_updates"]
+            optimizer.load_state_dict(state["optimizer"])
+            scaler.load_state_dict(state["scaler"])
+            start_epoch, best, history = state["epoch"] + 1, state["best_fitness"], state["history"]
+        weights = Path(out_dir) / "weights"
+        weights.mkdir(parents=True, exist_ok=True)
+        val_loader = DataLoader(
+            val_set, batch_size=self.batch_size, num_workers=self.workers, collate_fn=collate
+        )
+        num_batches = math.ceil(len(train_set) / self.batch_size)
+        warmup_iterations = round(self.warmup_epochs * num_batches)
+
+        for epoch in range(start_epoch, self.epochs):
+            train_set.set_epoch(epoch)
+            order = torch.randperm(
+                len(train_set), generator=torch.Generator().manual_seed(self.seed * 100_003 + epoch)
+            )
+            loader = DataLoader(
+                train_set,
+                batch_size=self.batch_size,
+                sampler=order.tolist(),
+                num_workers=self.workers,
+                collate_fn=collate,
+            )
+            target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
+            model.train()
+            optimizer.zero_grad()
+            sums, seen, started = torch.zeros(3), 0, time.perf_counter()
+            for i, (images, targets) in enumerate(loader):
+                iteration = i + num_batches * epoch
+                set_learning_rates(
+                    optimizer,
+                    iteration=iteration,
+                    warmup_iterations=warmup_iterations,
+                    target_lr=target_lr,
+                    momentum=self.momentum,
+                    warmup_momentum=self.warmup_momentum,
+                    warmup_bias_lr=self.warmup_bias_lr,
+                )
+                with torch.autocast(device.type, enabled=scaler.is_enabled()):
+                    raw = model(images.to(device).float() / 255)
+                loss, components = loss_fn([p.float() for p in raw], targets.to(device))
+                if not torch.isfinite(loss):
+                    raise FloatingPointError(
+                        f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped. The last good "
+                        f"checkpoint is {weights / 'last.pt'} (epochs before {epoch})"
+                    )
+                scaler.scale(loss).backward()
+                if (i + 1) % accumulate == 0 or i + 1 == num_batches:
+                    scaler.unscale_(optimizer)
+                    nn.utils.clip_grad_norm_(model.parameters(), max_norm=self.grad_clip)
+                    scaler.step(optimizer)
+                    scaler.update()
+                    optimizer.zero_grad()
+                    ema.update(model)
+                sums += components.cpu() * len(images)
+                seen += len(images)
+            train_seconds = time.perf_counter() - started
+
+            metrics, details = evaluate(
+                ema.module,
+                val_loader,
+                device=device,
+                conf_threshold=self.conf_threshold,
+                iou_threshold=self.iou_threshold,
+                max_det=self.max_det,
+                loss_fn=loss_fn,
+            )
+            record = {
+                "epoch": epoch,
+                **dict(zip(("box", "obj", "cls"), (sums / seen).tolist(), strict=True)),
+                **metrics,
+                "fitness": fitness(metrics),
+                "lr": optimizer.param_groups[1]["lr"],
+                "train_images_per_s": seen / train_seconds,
+            }
+            history.append(record)
+            is_best = record["fitness"] > best
+            best = max(best, record["fitness"])
+            state = {
+                "arch": model.arch,
+                "model": model.state_dict(),
+                "ema": ema.module.state_dict(),
+                "ema_updates": ema.updates,
+                "optimizer": optimizer.state_dict(),
+                "scaler": scaler.state_dict(),
+                "epoch": epoch,
+                "best_fitness": best,
+                "history": history,
+                "settings": settings,
+            }
+            save_checkpoint(weights / "last.pt", state)
+            if is_best:
+                save_checkpoint(weights / "best.pt", state)
+            if on_epoch_end is not None:
+                on_epoch_end(record, details, is_best)
+        return {
+            "history": history,
+            "best_fitness": best,
+            "best": weights / "best.pt",
+            "last": weights / "last.pt",
+        }

@@ -1,0 +1,71 @@
+"""Validation pass: losses, NMS, matching and mAP over a loader of letterboxed images."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import numpy as np
+import torch
+from torch import nn
+
+from spacetrack.engine.boxes import xywh_to_xyxy
+from spacetrack.engine.metrics import detection_metrics, match_detections
+from spacetrack.engine.nms import non_max_suppression
+
+
+@torch.no_grad()
+def evaluate(
+    model: nn.Module,
+    loader: Iterable[tuple[torch.Tensor, torch.Tensor]],
+    *,
+    device: torch.device,
+    conf_threshold: float,
+    iou_threshold: float,
+    max_det: int,
+    loss_fn: Callable | None = None,
+) -> tuple[dict[str, float], dict[str, object]]:
+    """(metrics, details) of `model` on `loader` (see `yolo_dataset.collate` for the batch format).
+
+    metrics: `map50`, `map50_95`, `precision`, `recall` and, with `loss_fn`, `val_box`, `val_obj`,
+    `val_cls` (per image). details: `pr_curves` and `examples` (the first batch's images with their
+    detections and ground truth, `xyxy` pixels of the letterboxed input) for plots.
+    """
+    model.eval()
+    tps, scores, pred_classes, gt_classes = [], [], [], []
+    losses = torch.zeros(3)
+    examples: dict[str, object] = {}
+    num_images = 0
+    for images, targets in loader:
+        x = images.to(device).float() / 255
+        raw = model(x)
+        if loss_fn is not None:
+            losses += loss_fn([p.float() for p in raw], targets.to(device))[1].cpu() * len(x)
+        detections = non_max_suppression(
+            model.detect.decode(raw).float(),
+            conf_threshold=conf_threshold,
+            iou_threshold=iou_threshold,
+            max_det=max_det,
+        )
+        size = torch.tensor(x.shape[2:][::-1] * 2, dtype=torch.float32)
+        batch_dets, batch_gts = [], []
+        for i, det in enumerate(detections):
+            det = det.cpu().numpy()
+            mine = targets[targets[:, 0] == i]
+            gt_boxes = (xywh_to_xyxy(mine[:, 2:6]) * size).numpy()
+            gt_cls = mine[:, 1].numpy()
+            tps.append(match_detections(det[:, :4], det[:, 4], det[:, 5], gt_boxes, gt_cls))
+            scores.append(det[:, 4])
+            pred_classes.append(det[:, 5])
+            gt_classes.append(gt_cls)
+            batch_dets.append(det)
+            batch_gts.append(np.column_stack((gt_boxes, gt_cls)))
+        if not examples:
+            examples = {"images": images.numpy(), "detections": batch_dets, "ground_truth": batch_gts}
+        num_images += len(x)
+    result = detection_metrics(
+        np.concatenate(tps), np.concatenate(scores), np.concatenate(pred_classes), np.concatenate(gt_classes)
+    )
+    metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall")}
+    if loss_fn is not None:
+        metrics.update(zip(("val_box", "val_obj", "val_cls"), (losses / num_images).tolist(), strict=True))
+    return metrics, {"pr_curves": result["pr_curves"], "examples": examples}

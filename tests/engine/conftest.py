@@ -1,0 +1,17 @@
+import pytest
+import torch
+from detector_helpers import write_tiny_dataset
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_torch_thread():
+    """Tiny convolutions run fastest on one thread, and far faster than two on a busy machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture
+def tiny_dataset(tmp_path):
+    return write_tiny_dataset(tmp_path / "tiny")

@@ -1,0 +1,107 @@
+import math
+
+import pytest
+import torch
+from detector_helpers import loss_for, tiny_model, write_tiny_dataset
+
+from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation
+from spacetrack.engine.checkpoint import load_checkpoint, load_detector
+from spacetrack.engine.trainer import Trainer
+
+SIZE = 64
+SETTINGS = {"epochs": 2, "batch_size": 4, "nbs": 4, "warmup_epochs": 0.5, "ema_tau": 5.0, "device": "cpu"}
+
+
+def datasets(root):
+    augment = build_augmentation(
+        hue=5, saturation=20, value=20, fliplr=0.5, flipud=0.5, scale=0.2, translate=0.1
+    )
+    names = [f"seq_{i:03d}_nominal" for i in range(9)]
+    train = YoloDataset(
+        root=root, sequences=names[1:3], num_classes=3, image_size=SIZE, augment=augment, seed=3
+    )
+    val = YoloDataset(root=root, sequences=names[:1], num_classes=3, image_size=SIZE)
+    return train, val
+
+
+def fit(root, out_dir, *, resume_from=None, on_epoch_end=None, loss_fn=None, **overrides):
+    torch.manual_seed(0)
+    model = tiny_model()
+    train, val = datasets(root)
+    return Trainer(**{**SETTINGS, **overrides}).fit(
+        model=model,
+        loss_fn=loss_fn or loss_for(model, SIZE),
+        train_set=train,
+        val_set=val,
+        out_dir=out_dir,
+        resume_from=resume_from,
+        on_epoch_end=on_epoch_end,
+    )
+
+
+@pytest.fixture(scope="module")
+def straight_run(tmp_path_factory):
+    """Two uninterrupted epochs, shared by the tests that only read their results."""
+    root = write_tiny_dataset(tmp_path_factory.mktemp("data") / "tiny")
+    return root, fit(root, tmp_path_factory.mktemp("straight"))
+
+
+def test_smoke_training_writes_checkpoints_and_metrics(straight_run):
+    _, result = straight_run
+    assert [r["epoch"] for r in result["history"]] == [0, 1]
+    for record in result["history"]:
+        assert math.isfinite(record["box"] + record["obj"] + record["cls"])
+        assert 0 <= record["map50_95"] <= record["map50"] <= 1
+    assert result["best"].is_file() and result["last"].is_file()
+    assert load_checkpoint(result["last"])["epoch"] == 1
+    model = load_detector(result["best"])
+    assert model.predict(torch.zeros(1, 3, SIZE, SIZE)).shape[-1] == 8
+
+
+def test_resume_after_a_kill_matches_an_uninterrupted_run(straight_run, tmp_path):
+    tiny_dataset, straight = straight_run
+
+    def kill_after_first_epoch(record, details, is_best):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        fit(tiny_dataset, tmp_path / "killed", on_epoch_end=kill_after_first_epoch)
+    resumed = fit(tiny_dataset, tmp_path / "killed", resume_from=tmp_path / "killed" / "weights" / "last.pt")
+    a = load_checkpoint(straight["last"])
+    b = load_checkpoint(resumed["last"])
+    for key in ("model", "ema"):
+        for name, value in a[key].items():
+            assert torch.equal(value, b[key][name]), f"{key}.{name} differs after resume"
+    assert a["history"][-1]["map50_95"] == b["history"][-1]["map50_95"]
+
+
+def test_resume_with_other_settings_is_refused(straight_run, tmp_path):
+    tiny_dataset, result = straight_run
+    with pytest.raises(ValueError, match="lr0: checkpoint 0.01, configured 0.02"):
+        fit(tiny_dataset, tmp_path / "run", resume_from=result["last"], lr0=0.02)
+
+
+def test_checkpoint_of_another_architecture_is_refused(straight_run, tmp_path):
+    _, result = straight_run
+    other = tiny_model(gam_position="after_sppf").arch
+    with pytest.raises(ValueError, match="gam_position: checkpoint None, configured 'after_sppf'"):
+        load_checkpoint(result["last"], arch=other)
+    with pytest.raises(ValueError, match="not a spacetrack detector checkpoint"):
+        torch.save({"state_dict": {}}, tmp_path / "foreign.pt")
+        load_checkpoint(tmp_path / "foreign.pt")
+
+
+def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_dataset, tmp_path):
+    model = tiny_model()
+    real = loss_for(model, SIZE)
+    calls = {"n": 0}
+
+    def poisoned(raw, targets):
+        calls["n"] += 1
+        loss, parts = real(raw, targets)
+        # Training batches of epoch 0 (2 per epoch) and its validation pass are fine; epoch 1 is not.
+        return (loss * float("nan"), parts) if calls["n"] > 3 else (loss, parts)
+
+    with pytest.raises(FloatingPointError, match="epoch 1 batch 0"):
+        fit(tiny_dataset, tmp_path / "run", loss_fn=poisoned)
+    assert load_checkpoint(tmp_path / "run" / "weights" / "last.pt")["epoch"] == 0
