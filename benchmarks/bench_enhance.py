@@ -17,6 +17,7 @@ synthetic dim frame is used instead (no renderer needed).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 from dataclasses import asdict
@@ -134,6 +135,18 @@ def stage_calls(enhancer: DwtHsvEnhancer, rgb: np.ndarray) -> dict[str, object]:
     }
 
 
+def interleaved_samples(calls: dict, *, repeats: int) -> dict[str, list[float]]:
+    """Seconds per call of each contender, timed round-robin (one call of each per round), so that a
+    change of machine load during the run hits every contender alike and the ratios stay fair."""
+    for call in calls.values():
+        time_call(call, repeats=0, warmup=3)
+    samples: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, call in calls.items():
+            samples[name] += time_call(call, repeats=1, warmup=0)
+    return samples
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=50)
@@ -153,7 +166,9 @@ def main() -> None:
     calls = {name: (lambda f=f: f(rgb)) for name, f in contenders.items()}
     calls.update(stage_calls(enhancer, rgb))
 
-    results = {name: summarize(time_call(call, repeats=args.repeats)) for name, call in calls.items()}
+    load_before = os.getloadavg()
+    samples = interleaved_samples(calls, repeats=args.repeats)
+    results = {name: summarize(s) for name, s in samples.items()}
     peer_median = results[peer]["median"]
     base_contrast = contrast(rgb, target)
     rows = []
@@ -177,14 +192,16 @@ def main() -> None:
         "input_contrast": base_contrast,
         "peer": peer,
         "repeats": args.repeats,
+        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
         "params": asdict(enhancer),
         "results": results,
     }
     table = markdown_table(["contender", "median ms", "p25 ms", "p75 ms", f"x {peer}", "contrast"], rows)
     md = (
         f"# DWT/HSV enhancement, {WIDTH}x{HEIGHT} frame\n\n"
-        f"Frame: {frame_desc}. Median of {args.repeats} calls after 3 warm-up calls; "
-        f"`x {peer}` is the median over the peer's median in the same run.\n"
+        f"Frame: {frame_desc}. Median of {args.repeats} calls after 3 warm-up calls, contenders timed "
+        f"round-robin; `x {peer}` is the median over the peer's median in the same run. Machine: "
+        f"{os.cpu_count()} CPUs, 1-minute load average {load_before[0]:.1f} before the run.\n"
         f"Contrast = (mean target V - mean background V) / std background V; the input frame has "
         f"{base_contrast:.2f}.\n\n" + table
     )

@@ -185,3 +185,8 @@ def test_bad_parameters_are_named(params, match):
 def test_unknown_parameter_is_rejected():
     with pytest.raises(TypeError, match="levels"):
         DwtHsvEnhancer(levels=2)
+
+
+def test_non_contiguous_views_are_accepted(dim_frame):
+    bgr_view = dim_frame.rgb[:, :, ::-1]
+    np.testing.assert_array_equal(enhance_dwt_hsv(bgr_view), enhance_dwt_hsv(np.ascontiguousarray(bgr_view)))

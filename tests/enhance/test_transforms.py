@@ -1,3 +1,5 @@
+import pickle
+
 import albumentations as A
 import numpy as np
 import pytest
@@ -30,3 +32,12 @@ def test_no_enhancement_is_the_identity(dim_frame):
     assert out is dim_frame.rgb
     via_transform = A.Compose([EnhanceTransform(none)])(image=dim_frame.rgb)["image"]
     np.testing.assert_array_equal(via_transform, dim_frame.rgb)
+
+
+def test_transform_survives_pickling_for_loader_workers(dim_frame):
+    transform = EnhanceTransform(DwtHsvEnhancer(level=2), p=1.0)
+    clone = pickle.loads(pickle.dumps(transform))
+    assert clone.enhancer == transform.enhancer
+    np.testing.assert_array_equal(
+        clone(image=dim_frame.rgb)["image"], enhance_dwt_hsv(dim_frame.rgb, level=2)
+    )
