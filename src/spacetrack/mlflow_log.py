@@ -33,6 +33,8 @@ DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 _SQLITE = "sqlite:///"
 PARENT_RUN_TAG = "mlflow.parentRunId"
 GIT_COMMIT_TAG = "mlflow.source.git.commit"
+# Tells the MLflow 3 UI these are model-training experiments (runs table, metric charts), not GenAI ones.
+EXPERIMENT_TAGS = {"mlflow.experimentKind": "custom_model_development"}
 
 
 def tracking_uri(uri: str | None = None) -> str:
@@ -75,7 +77,7 @@ def _experiment_id(name: str, uri: str) -> str:
         slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
         location = (Path(uri[len(_SQLITE) :]).parent / "mlartifacts" / slug).as_uri()
     try:
-        return client.create_experiment(name, artifact_location=location)
+        return client.create_experiment(name, artifact_location=location, tags=EXPERIMENT_TAGS)
     except MlflowException:
         # Another process (a parallel sweep job) created it between our lookup and create.
         experiment = client.get_experiment_by_name(name)
