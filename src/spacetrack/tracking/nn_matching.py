@@ -44,18 +44,22 @@ class NearestNeighborDistanceMetric:
         targets = np.asarray(targets, dtype=int)
         if not len(targets):
             return
-        self._reserve(features.shape[1], len(set(self._slot) | set(targets.tolist())))
-        for target in np.unique(targets):
-            new = features[targets == target]
-            slot = self._slot.get(int(target))
-            if slot is None:
-                slot = self._slot[int(target)] = self._free_slot()
-            self._append(slot, new)
+        order = np.argsort(targets, kind="stable")  # keeps each target's features in time order
+        features, targets = features[order], targets[order]
+        unique, first, inverse = np.unique(targets, return_index=True, return_inverse=True)
+        self._reserve(features.shape[1], len(self._slot.keys() | set(unique.tolist())))
+        slots = np.array(
+            [self._slot.get(t) if t in self._slot else self._new_slot(t) for t in unique.tolist()]
+        )
+        rank = np.arange(len(targets)) - first[inverse]  # index of each feature within its target's batch
+        for k in range(int(rank.max()) + 1):
+            self._write(slots[inverse[rank == k]], features[rank == k])
 
-    def _free_slot(self) -> int:
+    def _new_slot(self, target: int) -> int:
         used = np.zeros(len(self._bank), bool)
         used[list(self._slot.values())] = True
-        return int(np.flatnonzero(~used)[0])
+        slot = self._slot[target] = int(np.flatnonzero(~used)[0])
+        return slot
 
     def _reserve(self, dim: int, num_slots: int) -> None:
         """Grow the bank (doubling) to hold `num_slots` galleries of `dim`-dim features."""
@@ -75,20 +79,17 @@ class NearestNeighborDistanceMetric:
         count[:old_slots] = self._count
         self._bank, self._count = bank, count
 
-    def _append(self, slot: int, new: np.ndarray) -> None:
-        if self.budget is not None:
-            new = new[-self.budget :]
+    def _write(self, slots: np.ndarray, features: np.ndarray) -> None:
+        """Add one feature (row of `features`) to each of the distinct galleries `slots`."""
         capacity = self._bank.shape[1]
-        if self.budget is None and self._count[slot] + len(new) > capacity:
+        if self.budget is None and self._count[slots].max() >= capacity:
             # Unbounded galleries: make room by doubling the capacity of every slot.
-            needed = self._count[slot] + len(new)
-            self._resize(len(self._bank), max(needed, 2 * capacity), self._bank.shape[2])
-            capacity = self._bank.shape[1]
-        if not self._count[slot]:
-            self._bank[slot] = new[0]  # unfilled rows repeat the first feature
-        rows = (self._count[slot] + np.arange(len(new))) % capacity
-        self._bank[slot, rows] = new
-        self._count[slot] += len(new)
+            self._resize(len(self._bank), 2 * capacity, self._bank.shape[2])
+            capacity *= 2
+        fresh = self._count[slots] == 0
+        self._bank[slots[fresh]] = features[fresh][:, None, :]  # unfilled rows repeat the first feature
+        self._bank[slots, self._count[slots] % capacity] = features
+        self._count[slots] += 1
 
     def distance(self, features: np.ndarray, targets: list[int]) -> np.ndarray:
         """(len(targets), N) matrix of eq. (13): min over each target's gallery of 1 - r_m . r_k."""
@@ -96,6 +97,8 @@ class NearestNeighborDistanceMetric:
         if not len(targets) or not len(features):
             return np.zeros((len(targets), len(features)))
         slots = np.array([self._slot[t] for t in targets])
-        slots_used, capacity, dim = self._bank[: slots.max() + 1].shape
-        similarity = self._bank[:slots_used].reshape(-1, dim) @ features.T
-        return 1.0 - similarity.reshape(slots_used, capacity, -1).max(axis=1)[slots]
+        # Rows past the fullest requested gallery hold only repeats: leave them out of the product.
+        filled = min(self._bank.shape[1], int(self._count[slots].max()))
+        gallery = self._bank[slots, :filled]
+        similarity = gallery.reshape(-1, gallery.shape[2]) @ features.T
+        return 1.0 - similarity.reshape(len(slots), filled, -1).max(axis=1)

@@ -6,8 +6,6 @@ from enum import IntEnum
 
 import numpy as np
 
-from spacetrack.tracking.detection import xyah_to_tlwh
-
 
 class TrackState(IntEnum):
     """Tentative until `n_init` hits, then confirmed; deleted on a tentative miss or after `max_age`."""
@@ -44,10 +42,6 @@ class Track:
         self.features: list[np.ndarray] = [] if feature is None else [feature]
         self._n_init = n_init
         self._max_age = max_age
-
-    def to_tlwh(self) -> np.ndarray:
-        """The current state's box `tlwh` (pixels)."""
-        return xyah_to_tlwh(self.mean[:4])
 
     def predicted(self, mean: np.ndarray, covariance: np.ndarray) -> None:
         """Take the state predicted one frame ahead."""

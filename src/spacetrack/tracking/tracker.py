@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacetrack.tracking.detection import Detections
+from spacetrack.tracking.detection import Detections, xyah_to_tlwh
 from spacetrack.tracking.iou_matching import iou_matrix
 from spacetrack.tracking.kalman_filter import CHI2_95_4DOF, KalmanFilter
 from spacetrack.tracking.linear_assignment import INFTY_COST, matching_cascade, min_cost_matching
@@ -77,9 +77,13 @@ class Tracker:
 
         The box is the filtered state, not the detection (the reference DeepSORT's output rule).
         """
-        return [
-            (t.track_id, t.to_tlwh()) for t in self.tracks if t.is_confirmed() and t.time_since_update <= 1
-        ]
+        shown = [t for t in self.tracks if t.is_confirmed() and t.time_since_update <= 1]
+        return list(zip([t.track_id for t in shown], self._boxes(shown), strict=True))
+
+    @staticmethod
+    def _boxes(tracks: list[Track]) -> np.ndarray:
+        """(T, 4) boxes `tlwh` of the tracks' current states."""
+        return xyah_to_tlwh(np.array([t.mean[:4] for t in tracks]).reshape(-1, 4))
 
     @staticmethod
     def _states(tracks: list[Track]) -> tuple[np.ndarray, np.ndarray]:
@@ -118,8 +122,7 @@ class Tracker:
     def _iou_cost(self, detections: Detections, track_idx: list[int], det_idx: list[int]) -> np.ndarray:
         """1 - IoU between track states and detections; tracks unseen for over a frame never match."""
         tracks = [self.tracks[i] for i in track_idx]
-        boxes = np.stack([t.to_tlwh() for t in tracks])
-        cost = 1.0 - iou_matrix(boxes, detections.tlwh[det_idx])
+        cost = 1.0 - iou_matrix(self._boxes(tracks), detections.tlwh[det_idx])
         cost[np.array([t.time_since_update > 1 for t in tracks])] = INFTY_COST
         return cost
 
