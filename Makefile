@@ -8,6 +8,7 @@ ARGS ?=
 
 .DEFAULT_GOAL := help
 .PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs
+.PHONY: track-detections evaluate bench-tracker
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -44,7 +45,17 @@ format: $(STAMP) ## apply ruff fixes and formatting
 bench-enhance: $(STAMP) ## time the DWT/HSV enhancement per 640x480 frame -> reports/enhance.json
 	$(PY) benchmarks/bench_enhance.py $(ARGS)
 
-bench: bench-enhance ## run every benchmark
+track-detections: $(STAMP) ## track one detection file alone: ARGS="detections=IN.npy output=OUT.txt tracker=deepsort_paper"
+	$(PY) -m spacetrack.track_detections $(ARGS)
+
+evaluate: $(STAMP) ## score MOT results against a gt.txt: ARGS="results=OUT.txt gt=GT.txt output_json=M.json"
+	$(PY) -m spacetrack.evaluate $(ARGS)
+
+bench-tracker: $(STAMP) ## time the tracker per frame at 5/20/100 targets vs deep-sort-realtime -> reports/tracker.json
+	$(PY) -m pip install --quiet --no-deps deep-sort-realtime
+	$(PY) benchmarks/bench_tracker.py $(ARGS)
+
+bench: bench-enhance bench-tracker ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun
