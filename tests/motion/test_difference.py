@@ -59,3 +59,12 @@ def test_bad_parameters():
         FiveFrameDifference(threshold=0)
     with pytest.raises(ValueError, match="alpha"):
         TwoFrameDifference(alpha=-1)
+
+
+def test_exposure_step_is_not_motion_when_exposure_is_matched(scene, run):
+    frames, _ = scene(9, velocity=(0, 0))
+    # exposure up by a quarter from frame 4 on (below saturation: clipped pixels cannot be matched)
+    frames[4:] = [np.round(f * 1.25).astype(np.uint8) for f in frames[4:]]
+    assert not any(m.any() for m in run(FiveFrameDifference(match_exposure=True), frames).values())
+    # unmatched, the square brightens by 50 grey levels: motion
+    assert any(m.any() for m in run(FiveFrameDifference(), frames).values())

@@ -63,3 +63,11 @@ def test_reference_parameters_and_bad_values():
         ViBe(min_matches=21)
     with pytest.raises(ValueError, match="subsampling"):
         ViBe(subsampling=0)
+
+
+def test_exposure_step_is_not_foreground_when_exposure_is_matched(scene, run):
+    frames, _ = scene(12, velocity=(0, 0))
+    # exposure up by a quarter from frame 6 on (below saturation: clipped pixels cannot be matched)
+    frames[6:] = [np.round(f * 1.25).astype(np.uint8) for f in frames[6:]]
+    assert not any(m.any() for m in run(ViBe(match_exposure=True), frames).values())
+    assert run(ViBe(), frames)[6].any()

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from spacetrack.motion.compensation import SceneShift, shift_image
-from spacetrack.motion.frames import FrameGuard, to_grey
+from spacetrack.motion.frames import FrameGuard, match_exposure, to_grey
 
 
 def binarise(diff: np.ndarray, *, alpha: float, threshold: float) -> np.ndarray:
@@ -38,12 +38,21 @@ class FrameDifference(ABC):
         alpha: weight of the mean absolute difference in the adaptive threshold (eq. 17), unitless.
         threshold: fixed part T of the threshold, grey levels (0-255).
         compensate: register frames against global camera motion before differencing.
+        match_exposure: scale every frame of the window to the mean grey level of the frame the mask
+            refers to, so an exposure step (all pixels times a gain) is not motion.
     """
 
     span = 2  # frames in the window
     latency = 0  # frames between the newest frame and the one the mask refers to
 
-    def __init__(self, *, alpha: float = 1.0, threshold: float = 20.0, compensate: bool = False) -> None:
+    def __init__(
+        self,
+        *,
+        alpha: float = 1.0,
+        threshold: float = 20.0,
+        compensate: bool = False,
+        match_exposure: bool = False,
+    ) -> None:
         if threshold <= 0:
             raise ValueError(f"threshold must be > 0 grey levels, got {threshold}")
         if alpha < 0:
@@ -51,6 +60,7 @@ class FrameDifference(ABC):
         self.alpha = alpha
         self.threshold = threshold
         self.compensate = compensate
+        self.match_exposure = match_exposure
         self._guard = FrameGuard()
         self._shift = SceneShift()
         self._history: deque[tuple[np.ndarray, tuple[int, int]]] = deque(maxlen=self.span)
@@ -74,6 +84,9 @@ class FrameDifference(ABC):
         centre, (cx, cy) = self._history[self.span - 1 - self.latency]
         # Pixels that entered the view have no past: they take the centre frame's value, i.e. no change.
         aligned = [shift_image(g, cx - ox, cy - oy, centre) for g, (ox, oy) in self._history]
+        if self.match_exposure:
+            level = cv2.mean(centre)[0]
+            aligned = [match_exposure(g, level) for g in aligned]
         return self._combine(aligned)
 
     def _moving(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacetrack.motion.blobs import Blob, blob_boxes
+from spacetrack.motion.blobs import Blob, blob_boxes, intersections
 
 
 def overlap_min_area(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> np.ndarray:
@@ -22,14 +22,8 @@ def overlap_min_area(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> np.ndarray:
     Intersection over the smaller box, not IoU: a motion blob is often much smaller or larger than the
     detector box of the same target, and should still count as the same thing.
     """
-    a = np.asarray(a_tlwh, dtype=np.float64).reshape(-1, 4)
-    b = np.asarray(b_tlwh, dtype=np.float64).reshape(-1, 4)
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 0] + a[:, None, 2], b[None, :, 0] + b[None, :, 2])
-    y2 = np.minimum(a[:, None, 1] + a[:, None, 3], b[None, :, 1] + b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    smaller = np.minimum((a[:, 2] * a[:, 3])[:, None], (b[:, 2] * b[:, 3])[None, :])
+    inter, area_a, area_b = intersections(a_tlwh, b_tlwh)
+    smaller = np.minimum(area_a[:, None], area_b[None, :])
     return np.divide(inter, smaller, out=np.zeros_like(inter), where=smaller > 0)
 
 

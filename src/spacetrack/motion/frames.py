@@ -34,6 +34,18 @@ def to_grey(frame: np.ndarray) -> np.ndarray:
     return frame.reshape(frame.shape[0], frame.shape[1])
 
 
+def match_exposure(grey: np.ndarray, mean: float) -> np.ndarray:
+    """`grey` (uint8) scaled so its mean grey level becomes `mean` (saturating at 255).
+
+    Undoes a change of exposure or gain, which multiplies every pixel: the adaptive threshold of eq. 17
+    absorbs an added light level, not a doubled one. A black frame is returned as it is.
+    """
+    current = cv2.mean(grey)[0]
+    if current <= 0 or mean <= 0:
+        return grey
+    return cv2.convertScaleAbs(grey, alpha=mean / current)
+
+
 class FrameGuard:
     """Counts frames and rejects input a detector cannot use, naming the 0-based frame index.
 

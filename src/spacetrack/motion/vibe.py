@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from spacetrack.motion.compensation import SceneShift, shift_image
-from spacetrack.motion.frames import FrameGuard, to_grey
+from spacetrack.motion.frames import FrameGuard, match_exposure, to_grey
 
 # The 8-neighbourhood as (dy, dx).
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
@@ -39,6 +39,8 @@ class ViBe:
         colour: model RGB triples (Euclidean distance) instead of grey values.
         compensate: move the model with the camera (see `compensation`); pixels entering the view restart
             their model from the current frame.
+        match_exposure: scale each grey frame to the first frame's mean grey level before comparing, so
+            an exposure step is not foreground (grey models only).
         absorb_after: frames a pixel must stay foreground before it updates like background (1-255);
             0 never (pure conservative update).
         seed: seed of the random tables; reset() restores it, so a rerun gives the same masks.
@@ -55,6 +57,7 @@ class ViBe:
         subsampling: int = 16,
         colour: bool = False,
         compensate: bool = False,
+        match_exposure: bool = False,
         absorb_after: int = 60,
         seed: int = 0,
     ) -> None:
@@ -70,6 +73,7 @@ class ViBe:
         self.subsampling = subsampling
         self.colour = colour
         self.compensate = compensate
+        self.match_exposure = match_exposure
         self.absorb_after = absorb_after
         self.seed = seed
         self._guard = FrameGuard()
@@ -82,6 +86,7 @@ class ViBe:
         self._rng = np.random.default_rng(self.seed)
         self._model: np.ndarray | None = None  # (N, H, W) grey or (N, H, W, 3) colour samples
         self._offset = (0, 0)
+        self._level = 0.0  # the first frame's mean grey level
         self._foreground_run: np.ndarray | None = None  # (H, W) uint8 frames in a row as foreground, capped
 
     @property
@@ -91,6 +96,10 @@ class ViBe:
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         frame = self._guard.check(frame)
         grey = to_grey(frame)
+        if self.match_exposure and not self.colour:
+            if self._model is None:
+                self._level = cv2.mean(grey)[0]
+            grey = match_exposure(grey, self._level)
         image = frame if self.colour and frame.ndim == 3 and frame.shape[2] == 3 else grey
         if self._model is None:
             self._initialise(image)

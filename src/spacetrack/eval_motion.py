@@ -1,0 +1,241 @@
+"""Score the motion detectors against rendered ground truth, per scenario, and draw their masks.
+
+python -m spacetrack.eval_motion dataset=data/motion_eval [scenarios=[dim,slew]] [logger=none]
+
+Every method of `cfg.methods` runs over every selected sequence; all are scored on the same frames (from
+`warmup` to the last frame every method has a mask for). Scenarios in `compensate_scenarios` are scored a
+second time, as `<scenario>_gmc`, with global motion compensation on for the methods that have it; the
+overall score pools those compensated rows instead of the plain ones (a slewing camera would run with it).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import cv2
+import hydra
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from spacetrack.config import CONF_DIR, resolved_dict
+from spacetrack.data.layout import frame_paths, load_manifest, read_mot
+from spacetrack.io import atomic_path, atomic_write_text
+from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
+from spacetrack.motion.evaluation import MotionScore
+from spacetrack.motion.frames import to_grey
+from spacetrack.viz.sheet import contact_sheet
+
+log = logging.getLogger(__name__)
+
+OVERALL = "overall"
+METRICS = ("pixel_f1", "lit_f1", "blob_recall", "blob_precision", "pixel_precision", "pixel_recall")
+
+
+def build_methods(methods: DictConfig, *, compensate: bool) -> dict:
+    """{name: detector}; with `compensate`, every `compensate` key in a method's config is set true."""
+
+    def switch_on(node: object) -> None:
+        if isinstance(node, dict):
+            if "compensate" in node:
+                node["compensate"] = True
+            for value in node.values():
+                switch_on(value)
+
+    detectors = {}
+    for name, method_cfg in methods.items():
+        plain = OmegaConf.to_container(method_cfg, resolve=True)
+        if compensate:
+            switch_on(plain)
+        detectors[name] = instantiate(plain)
+    return detectors
+
+
+def read_frame(path: Path) -> np.ndarray:
+    """RGB uint8 image at `path`."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FileNotFoundError(f"{path}: missing or not an image")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def read_truth_mask(seq_dir: Path, index: int, shape: tuple[int, int]) -> np.ndarray:
+    """Ground-truth motion mask of 0-based frame `index` (masks/ is 1-based)."""
+    path = seq_dir / "masks" / f"{index + 1:06d}.png"
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise FileNotFoundError(f"{path}: missing or not an image (ground-truth mask of frame {index + 1})")
+    if mask.shape != shape:
+        raise ValueError(f"{path}: mask of shape {mask.shape}, the frames are {shape}")
+    return mask
+
+
+def target_boxes(gt: np.ndarray, min_visibility: float) -> dict[int, np.ndarray]:
+    """{0-based frame: (N, 4) tlwh boxes of the visible moving targets} from MOT ground-truth rows."""
+    visible = gt[(gt[:, 6] > 0) & (gt[:, 8] >= min_visibility)]
+    return {int(f) - 1: visible[visible[:, 0] == f, 2:6] for f in np.unique(visible[:, 0])}
+
+
+def mask_overlay(mask: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """RGB picture of a mask against the truth: white found, red false, blue missed."""
+    pred, true = mask > 0, truth > 0
+    out = np.zeros((*mask.shape, 3), np.uint8)
+    out[pred & true] = (255, 255, 255)
+    out[pred & ~true] = (255, 40, 40)
+    out[~pred & true] = (60, 110, 255)
+    return out
+
+
+def score_sequence(cfg: DictConfig, seq_dir: Path, detectors: dict, sheet_at: float) -> tuple[dict, list]:
+    """({method: MotionScore}, side-by-side tiles at `sheet_at` of the scored frames) for one sequence."""
+    paths = frame_paths(seq_dir.parent, seq_dir.name, cfg.image_dir)
+    if cfg.max_frames:
+        paths = paths[: cfg.max_frames]
+    boxes = target_boxes(read_mot(seq_dir / "gt" / "gt.txt"), cfg.min_visibility)
+    latency = max(d.latency for d in detectors.values())
+    first, last = max(cfg.warmup, latency), len(paths) - 1 - latency
+    if last < first:
+        raise ValueError(
+            f"{seq_dir}: {len(paths)} frames are too few to score (warmup {first}, latency {latency})"
+        )
+    sheet_index = first + round(sheet_at * (last - first))
+    scores = {name: MotionScore() for name in detectors}
+    truths: dict[int, np.ndarray] = {}
+    darks: dict[int, np.ndarray] = {}
+    tiles: dict[str, np.ndarray] = {}
+    for i, path in enumerate(paths):
+        frame = read_frame(path)
+        truths[i] = read_truth_mask(seq_dir, i, frame.shape[:2])
+        darks[i] = to_grey(frame) < cfg.dark_level
+        truths.pop(i - latency - 1, None)
+        darks.pop(i - latency - 1, None)
+        if i == sheet_index:
+            tiles["frame"], tiles["ground truth"] = frame, mask_overlay(truths[i], truths[i])
+        for name, detector in detectors.items():
+            mask = detector.apply(frame)
+            t = detector.mask_index
+            if mask is None or not first <= t <= last:
+                continue
+            no_targets = np.zeros((0, 4))
+            scores[name].add_frame(
+                mask,
+                truths[t],
+                boxes.get(t, no_targets),
+                dark=darks[t],
+                blob_iou=cfg.blob_iou,
+                min_blob_area=cfg.min_blob_area,
+            )
+            if t == sheet_index:
+                tiles[name] = mask_overlay(mask, truths[t])
+    return scores, [(label, tiles[label]) for label in ("frame", "ground truth", *detectors)]
+
+
+def markdown(results: dict[str, dict[str, dict[str, float]]], methods: list[str]) -> str:
+    """One markdown table per metric: a row per scenario, a column per method."""
+    parts = []
+    for metric in METRICS:
+        lines = [
+            f"### {metric}",
+            "",
+            "| scenario | " + " | ".join(methods) + " |",
+            "|" + "---|" * (len(methods) + 1),
+        ]
+        for label, by_method in results.items():
+            cells = [f"{by_method[m][metric]:.3f}" for m in methods]
+            best = max(by_method[m][metric] for m in methods)
+            cells = [
+                f"**{c}**" if by_method[m][metric] == best else c for c, m in zip(cells, methods, strict=True)
+            ]
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    """Score every method per scenario; write accuracy.json, accuracy.md and sheet_<scenario>.jpg.
+
+    Returns `<scenario>.<method>.<metric>` for every row and `overall.<method>.<metric>` pooled over the
+    scored rows (compensated ones in place of plain ones for `compensate_scenarios`).
+    """
+    root, out_dir = Path(cfg.dataset), Path(cfg.output_dir)
+    if not out_dir.is_dir():
+        raise FileNotFoundError(f"output_dir {out_dir} does not exist")
+    manifest = load_manifest(root)
+    by_scenario: dict[str, list[str]] = {}
+    for seq in manifest["sequences"]:
+        by_scenario.setdefault(seq["scenario"], []).append(seq["name"])
+    wanted = list(cfg.scenarios) if cfg.scenarios else list(by_scenario)
+    missing = [s for s in wanted if s not in by_scenario]
+    if missing:
+        raise ValueError(f"{root}: no sequences of scenario(s) {missing}; it has {sorted(by_scenario)}")
+    variants = [(s, s, False) for s in wanted]
+    variants += [(f"{s}_gmc", s, True) for s in wanted if s in cfg.compensate_scenarios]
+    pooled_out = {s for s in wanted if s in cfg.compensate_scenarios}
+    totals: dict[str, dict[str, MotionScore]] = {}
+    overall: dict[str, MotionScore] = {}
+    with start_run(cfg, run_name=root.name):
+        for label, scenario, compensate in variants:
+            names = by_scenario[scenario][: cfg.max_sequences or None]
+            totals[label] = {}
+            for k, name in enumerate(names):
+                detectors = build_methods(cfg.methods, compensate=compensate)
+                scores, tiles = score_sequence(cfg, root / name, detectors, cfg.sheet_position)
+                for method, score in scores.items():
+                    totals[label][method] = totals[label].get(method, MotionScore()).merge(score)
+                f1 = {m: round(s.summary()["pixel_f1"], 3) for m, s in scores.items()}
+                log.info("%s %s pixel F1: %s", label, name, f1)
+                if k == 0:
+                    write_sheet(out_dir / f"sheet_{label}.jpg", tiles, f"{label} / {name}")
+            if scenario not in pooled_out or compensate:
+                for method, score in totals[label].items():
+                    overall[method] = overall.get(method, MotionScore()).merge(score)
+        results = {label: {m: s.summary() for m, s in row.items()} for label, row in totals.items()}
+        results[OVERALL] = {m: s.summary() for m, s in overall.items()}
+        metrics = {
+            f"{label}.{m}.{k}": v
+            for label, row in results.items()
+            for m, s in row.items()
+            for k, v in s.items()
+        }
+        record = {
+            "dataset": str(root),
+            "content_hash": manifest.get("content_hash"),
+            "scored_with_compensation": sorted(pooled_out),
+            "config": resolved_dict(cfg),
+            "results": results,
+        }
+        atomic_write_text(out_dir / "accuracy.json", json.dumps(record, indent=2) + "\n")
+        atomic_write_text(out_dir / "accuracy.md", markdown(results, list(cfg.methods)))
+        log_metrics_step(metrics, step=0)
+        for path in [
+            out_dir / "accuracy.json",
+            out_dir / "accuracy.md",
+            *sorted(out_dir.glob("sheet_*.jpg")),
+        ]:
+            log_artifact_file(path)
+    log.info("overall pixel F1: %s", {m: round(s["pixel_f1"], 3) for m, s in results[OVERALL].items()})
+    return metrics
+
+
+def write_sheet(path: Path, tiles: list[tuple[str, np.ndarray]], title: str) -> None:
+    """Tile (label, RGB image) pairs three to a row and write them as JPEG."""
+    labels = [f"{title}: {label}" if i == 0 else label for i, (label, _) in enumerate(tiles)]
+    sheet = contact_sheet([image for _, image in tiles], cols=3, labels=labels, tile_width=320)
+    with atomic_path(path) as tmp:
+        ok, data = cv2.imencode(
+            ".jpg", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
+        )
+        if not ok:
+            raise OSError(f"could not encode {path}")
+        tmp.write_bytes(data.tobytes())
+
+
+@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="eval_motion")
+def main(cfg: DictConfig) -> None:
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

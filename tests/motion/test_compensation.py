@@ -1,0 +1,50 @@
+import numpy as np
+import pytest
+
+from spacetrack.motion import FiveFrameDifference, ViBe
+from spacetrack.motion.compensation import SceneShift, shift_image
+
+
+def test_shift_image_moves_content_and_fills_the_rest():
+    image = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    out = shift_image(image, 1, -1, np.uint8(99))
+    np.testing.assert_array_equal(out, [[99, 4, 5, 6], [99, 8, 9, 10], [99, 99, 99, 99]])
+    stack = np.stack([image, image + 50])
+    np.testing.assert_array_equal(shift_image(stack, 1, -1, 99, axis=1)[1], np.where(out == 99, 99, out + 50))
+    assert shift_image(image, 0, 0, 0) is image
+    assert (shift_image(image, 5, 0, 7) == 7).all()
+
+
+def _star_field(num_frames: int, step: tuple[int, int], shape=(96, 128), seed=0) -> list[np.ndarray]:
+    """A field of 3x3 stars drifting by `step` whole pixels per frame (a slewing camera)."""
+    rng = np.random.default_rng(seed)
+    sky = np.full((shape[0] * 2, shape[1] * 2), 10.0)
+    for y, x in zip(
+        rng.integers(2, sky.shape[0] - 2, 300), rng.integers(2, sky.shape[1] - 2, 300), strict=True
+    ):
+        sky[y - 1 : y + 2, x - 1 : x + 2] = rng.uniform(80, 250)
+    frames = []
+    for t in range(num_frames):
+        y0, x0 = 40 - step[1] * t, 40 - step[0] * t
+        noisy = sky[y0 : y0 + shape[0], x0 : x0 + shape[1]] + rng.normal(0, 2, shape)
+        frames.append(np.clip(noisy, 0, 255).astype(np.uint8))
+    return frames
+
+
+def test_scene_shift_accumulates_the_slew():
+    shift = SceneShift(crop=64)
+    offsets = [shift.update(f) for f in _star_field(6, (2, -1))]
+    assert offsets == [(2 * t, -t) for t in range(6)]
+    shift.reset()
+    assert shift.update(np.zeros((8, 8), np.uint8)) == (0, 0)
+    with pytest.raises(ValueError, match="crop"):
+        SceneShift(crop=-1)
+
+
+@pytest.mark.parametrize("cls", [FiveFrameDifference, ViBe])
+def test_compensation_keeps_a_slewing_star_field_still(run, cls):
+    frames = _star_field(12, (2, 1))
+    plain = run(cls(), frames)
+    compensated = run(cls(compensate=True), frames)
+    assert max(m.sum() for m in plain.values()) > 200
+    assert all(m.sum() == 0 for m in compensated.values())

@@ -1,0 +1,50 @@
+import numpy as np
+import pytest
+
+from spacetrack.motion.blobs import Blob, find_blobs
+from spacetrack.motion.dynamic import DynamicFilter, overlap_min_area
+
+
+def test_find_blobs_centroid_box_and_area():
+    mask = np.zeros((20, 30), np.uint8)
+    mask[2:5, 4:7] = 255  # 3x3: the outline through pixel centres encloses 4 px²
+    mask[10, 20] = 255
+    blobs = find_blobs(mask)
+    big = next(b for b in blobs if b.area > 0)
+    assert big.tlwh == (4, 2, 3, 3) and big.area == 4.0 and big.centroid == pytest.approx((5.0, 3.0))
+    assert len(blobs) == 2
+    assert find_blobs(mask, min_area=1) == [big]
+
+
+def test_overlap_is_over_the_smaller_box():
+    overlap = overlap_min_area([[0, 0, 10, 10]], [[2, 2, 2, 2], [8, 0, 10, 10], [50, 50, 1, 1]])
+    np.testing.assert_allclose(overlap, [[1.0, 0.2, 0.0]])
+
+
+def test_boxes_with_a_blob_are_dynamic_and_the_others_static():
+    blobs = [Blob((15.0, 15.0), (10, 10, 10, 10), 90.0), Blob((103.0, 50.0), (101, 48, 4, 4), 9.0)]
+    boxes = np.array(
+        [
+            [12, 12, 10, 10],  # overlaps the first blob
+            [90, 40, 12, 20],  # no overlap but the second blob's centroid is 7 px from its centre
+            [300, 300, 20, 20],  # a parked satellite: no blob anywhere near
+        ]
+    )
+    assert DynamicFilter(min_overlap=0.3, max_distance=8.0)(boxes, blobs).tolist() == [True, True, False]
+    assert DynamicFilter(min_overlap=0.3, max_distance=0.0)(boxes, blobs).tolist() == [True, False, False]
+    assert not DynamicFilter()(boxes, []).any()
+
+
+def test_select_keeps_the_rows_of_moving_detections():
+    detections = np.zeros((2, 12))
+    detections[:, 2:6] = [[12, 12, 10, 10], [300, 300, 20, 20]]
+    detections[:, 0] = 7
+    kept = DynamicFilter().select(detections, [Blob((15.0, 15.0), (10, 10, 10, 10), 90.0)])
+    np.testing.assert_array_equal(kept, detections[:1])
+
+
+def test_bad_thresholds():
+    with pytest.raises(ValueError, match="min_overlap"):
+        DynamicFilter(min_overlap=0)
+    with pytest.raises(ValueError, match="max_distance"):
+        DynamicFilter(max_distance=-1)
