@@ -1,0 +1,118 @@
+"""Train the YOLOv5s(+GAM) detector on eight folds and validate on the ninth: `python -m spacetrack.train fold=3`.
+
+The run folder holds `weights/best.pt`, `weights/last.pt` and `plots/` (PR curve and a grid of
+validation predictions of the best epoch); the same go to MLflow with per-epoch losses and metrics.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from spacetrack.config import CONF_DIR, resolved_dict
+from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
+from spacetrack.engine.loss import YoloLoss
+from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
+from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
+from spacetrack.models.yolo import count_parameters
+
+REPORTED = ("map50", "map50_95", "precision", "recall", "fitness")
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    """Train one fold; return the best epoch's mAP@0.5, mAP@0.5:0.95, precision, recall and fitness."""
+    root = Path(cfg.data_root) / cfg.data.name
+    manifest = load_manifest(root)
+    train_names, val_names = split_sequences(manifest, cfg.fold)
+    class_names = list(manifest["class_names"])
+    if cfg.train.threads:
+        torch.set_num_threads(int(cfg.train.threads))
+    enhancer = instantiate(cfg.enhance)
+    image_dir, enhance_on_the_fly = image_source(root, train_names + val_names, enhancer.name)
+    out_dir = Path(cfg.resume).resolve().parents[1] if cfg.resume else Path(cfg.out_dir)
+
+    torch.manual_seed(cfg.train.trainer.seed)
+    model = instantiate(cfg.model, num_classes=len(class_names))
+    loss_fn = YoloLoss(
+        anchors=model.detect.anchors,
+        strides=model.stride,
+        num_classes=len(class_names),
+        image_size=cfg.train.image_size,
+        **cfg.train.loss,
+    )
+    common = {
+        "root": root,
+        "num_classes": len(class_names),
+        "image_size": cfg.train.image_size,
+        "image_dir": image_dir,
+        "enhancer": enhancer if enhance_on_the_fly else None,
+    }
+    train_set = YoloDataset(
+        sequences=train_names,
+        frame_stride=cfg.train.frame_stride,
+        augment=build_augmentation(**cfg.train.augment),
+        seed=cfg.train.trainer.seed,
+        **common,
+    )
+    val_set = YoloDataset(sequences=val_names, frame_stride=cfg.train.val_frame_stride, **common)
+    trainer = instantiate(cfg.train.trainer)
+    # Everything besides the trainer's own keys that changes the result; a resume must not change it.
+    run_settings = resolved_dict(OmegaConf.masked_copy(cfg, ["data", "enhance", "model", "fold"])) | {
+        k: v for k, v in resolved_dict(cfg.train).items() if k not in ("trainer", "threads")
+    }
+
+    plots = out_dir / "plots"
+    plots.mkdir(parents=True, exist_ok=True)
+
+    def on_epoch_end(record: dict[str, float], details: dict, is_best: bool) -> None:
+        log_metrics_step({k: v for k, v in record.items() if k != "epoch"}, step=int(record["epoch"]))
+        print(" ".join(f"{k}={v:.4g}" for k, v in record.items()), flush=True)
+        if is_best:
+            plot_pr_curves(details["pr_curves"], class_names, plots / "pr_curve.png")
+            write_png(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
+
+    tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
+    with start_run(cfg, run_name=f"fold{cfg.fold}", parent_run_id=cfg.cv_parent_run_id, tags=tags):
+        log_metrics_step(
+            {
+                "parameters": count_parameters(model),
+                "train_images": len(train_set),
+                "val_images": len(val_set),
+            },
+            0,
+        )
+        result = trainer.fit(
+            model=model,
+            loss_fn=loss_fn,
+            train_set=train_set,
+            val_set=val_set,
+            out_dir=out_dir,
+            resume_from=cfg.resume,
+            run_settings=run_settings,
+            on_epoch_end=on_epoch_end,
+        )
+        best = max(result["history"], key=lambda r: r["fitness"])
+        summary = {k: float(best[k]) for k in REPORTED}
+        log_metrics_step({f"best_{k}": v for k, v in summary.items()} | {"best_epoch": best["epoch"]}, step=0)
+        log_artifact_file(result["best"], "weights")
+        for name in ("pr_curve.png", "val_predictions.png"):
+            log_artifact_file(plots / name, "plots")
+    print(
+        f"fold {cfg.fold}: best epoch {best['epoch']}: "
+        + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
+    )
+    return summary
+
+
+@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="train")
+def main(cfg: DictConfig) -> float:
+    return run(cfg)["fitness"]
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,75 @@
+import os
+
+import mlflow
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import open_dict
+
+from spacetrack.config import CONF_DIR
+from spacetrack.engine.cross_validation import PARENT_ENV, CrossValidationCallback
+from spacetrack.train import run
+
+
+def config(tiny_dataset, tmp_path, *overrides):
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        cfg = compose(
+            config_name="train",
+            overrides=[
+                "train=smoke",
+                "logger=none",
+                f"data_root={tiny_dataset.parent}",
+                f"data.name={tiny_dataset.name}",
+                f"out_dir={tmp_path / 'run'}",
+                "train.frame_stride=4",
+                *overrides,
+            ],
+        )
+    with open_dict(cfg):
+        cfg.cv_parent_run_id = None  # not resolvable outside a Hydra job, and not wanted here
+    return cfg
+
+
+def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
+    result = run(config(tiny_dataset, tmp_path, "fold=3", "model=yolov5s_gam_light"))
+    assert set(result) == {"map50", "map50_95", "precision", "recall", "fitness"}
+    assert (tmp_path / "run" / "weights" / "best.pt").is_file()
+    assert (tmp_path / "run" / "plots" / "pr_curve.png").is_file()
+    assert (tmp_path / "run" / "plots" / "val_predictions.png").is_file()
+
+
+@pytest.mark.parametrize("fold", [-1, 9])
+def test_fold_outside_the_nine_is_refused(tiny_dataset, tmp_path, fold):
+    with pytest.raises(ValueError, match=f"fold {fold} is outside 0..8"):
+        run(config(tiny_dataset, tmp_path, f"fold={fold}"))
+
+
+def test_cross_validation_parent_gets_mean_and_std(tiny_dataset, tmp_path, monkeypatch):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    cfg = config(
+        tiny_dataset, tmp_path, "logger=mlflow", f"logger.tracking_uri={uri}", "model.width_multiple=0.125"
+    )
+    monkeypatch.setenv(PARENT_ENV, "")  # restored after the test whatever happens
+    callback = CrossValidationCallback(metrics=["best_map50", "best_map50_95"])
+    with open_dict(cfg):
+        cfg.hydra = {"overrides": {"task": ["fold=0,1"]}}
+    callback.on_multirun_start(cfg)
+    parent = os.environ[PARENT_ENV]
+    for fold in (0, 1):
+        with open_dict(cfg):
+            cfg.fold = fold
+            cfg.cv_parent_run_id = parent
+            cfg.out_dir = str(tmp_path / f"fold{fold}")
+        run(cfg)
+    callback.on_multirun_end(cfg)
+    client = mlflow.MlflowClient(uri)
+    parent_run = client.get_run(parent)
+    assert parent_run.info.status == "FINISHED"
+    assert {"best_map50_mean", "best_map50_std", "best_map50_95_mean", "best_map50_95_std"} <= set(
+        parent_run.data.metrics
+    )
+    children = client.search_runs(
+        [parent_run.info.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent}'"
+    )
+    artifacts = {a.path for a in client.list_artifacts(children[0].info.run_id, "plots")}
+    assert artifacts == {"plots/pr_curve.png", "plots/val_predictions.png"}
+    assert sorted(c.data.tags["fold"] for c in children) == ["0", "1"]
