@@ -145,7 +145,10 @@ def start_run(
 
 
 def log_artifact_file(path: str | Path, artifact_path: str | None = None) -> None:
-    """Copy the file at `path` into the active run's artifacts (under folder `artifact_path`)."""
+    """Copy the file at `path` into the active run's artifacts (under folder `artifact_path`).
+
+    A missing file is an error even when no run is active, so turning the logger off hides no bug.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"cannot log artifact {path}: no such file")
