@@ -9,6 +9,7 @@ ARGS ?=
 .DEFAULT_GOAL := help
 .PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs
 .PHONY: track-detections evaluate bench-tracker
+.PHONY: train cv bench-detector
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -55,7 +56,22 @@ bench-tracker: $(STAMP) ## time the tracker per frame at 5/20/100 targets vs dee
 	$(PY) -m pip install --quiet --no-deps deep-sort-realtime
 	$(PY) benchmarks/bench_tracker.py $(ARGS)
 
-bench: bench-enhance bench-tracker ## run every benchmark
+FOLD ?= 3
+DEFAULT_DATA := data/space_default
+
+$(DEFAULT_DATA)/manifest.json: | $(STAMP)
+	$(PY) -m spacetrack.build_data
+
+train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on FOLD (default 3), train on the rest; ARGS="model=yolov5s_gam enhance=dwt_hsv"
+	$(PY) -m spacetrack.train fold=$(FOLD) $(ARGS)
+
+cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the detector (Hydra multirun, one MLflow parent run)
+	$(PY) -m spacetrack.train -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
+
+bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 and training images/s -> reports/detector.json
+	$(PY) benchmarks/bench_detector.py $(ARGS)
+
+bench: bench-enhance bench-tracker bench-detector ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun
