@@ -10,6 +10,13 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+def _plain_mode(base: int) -> int:
+    """`base` (0o666 for files, 0o777 for folders) less the umask: what open() or mkdir() would give."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return base & ~umask
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary sibling of `path` to write to; it replaces `path` only if the block succeeds.
@@ -22,6 +29,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(tmp_name)
+    # mkstemp makes the file private (0600); give it the permissions a plain open() would
+    os.chmod(tmp, _plain_mode(0o666))
     try:
         yield tmp
         os.replace(tmp, path)
@@ -53,6 +62,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False) -> Iterator[Path]:
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} already exists; pass overwrite=true to replace it")
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    os.chmod(tmp, _plain_mode(0o777))
     try:
         yield tmp
         if path.exists():
