@@ -10,6 +10,7 @@ ARGS ?=
 .PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs
 .PHONY: track-detections evaluate bench-tracker
 .PHONY: train cv bench-detector
+.PHONY: eval-motion bench-motion
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -74,7 +75,20 @@ cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the 
 bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 and training images/s -> reports/detector.json
 	$(PY) benchmarks/bench_detector.py $(ARGS)
 
-bench: bench-enhance bench-tracker bench-detector ## run every benchmark
+MOTION_DATA := data/motion_eval
+MOTION_SCENARIOS := [nominal,dim,strong_light,occlusion,multi_target,static_distractors,slew]
+
+$(MOTION_DATA)/manifest.json: | $(STAMP)
+	$(PY) -m spacetrack.build_data data.name=motion_eval 'data/scenario=$(MOTION_SCENARIOS)' \
+		data.num_sequences=14 data.num_folds=2 logger=none
+
+eval-motion: $(STAMP) $(MOTION_DATA)/manifest.json ## score the motion detectors per scenario (pixel/blob P, R, F1) -> experiments/table3_motion
+	$(PY) -m spacetrack.eval_motion dataset=$(MOTION_DATA) $(ARGS)
+
+bench-motion: $(STAMP) ## time every motion detector per 640x480 frame against OpenCV MOG2 (Table 3) -> reports/motion.json
+	$(PY) benchmarks/bench_motion.py $(ARGS)
+
+bench: bench-enhance bench-tracker bench-detector bench-motion ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun

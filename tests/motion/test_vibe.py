@@ -71,3 +71,21 @@ def test_exposure_step_is_not_foreground_when_exposure_is_matched(scene, run):
     frames[6:] = [np.round(f * 1.25).astype(np.uint8) for f in frames[6:]]
     assert not any(m.any() for m in run(ViBe(match_exposure=True), frames).values())
     assert run(ViBe(), frames)[6].any()
+
+
+@pytest.mark.parametrize("colour", [False, True])
+def test_two_pass_decision_equals_counting_every_sample(colour):
+    rng = np.random.default_rng(4)
+    shape = (30, 40, 3) if colour else (30, 40)
+    vibe = ViBe(colour=colour, radius=15)
+    vibe.apply(rng.integers(0, 256, shape, dtype=np.uint8))
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    # samples close to the image at some pixels, scattered far at others, so both answers occur
+    spread = rng.choice([8, 30, 90], size=shape)
+    noise = rng.uniform(-1, 1, vibe._model.shape) * spread
+    vibe._model = np.clip(image + noise, 0, 255).astype(np.uint8)
+    diff = vibe._model.astype(int) - image
+    dist2 = (diff**2).sum(axis=-1) if colour else diff**2
+    brute = (dist2 < 15**2).sum(axis=0) < vibe.min_matches
+    assert 0 < brute.sum() < brute.size
+    np.testing.assert_array_equal(vibe._foreground(image) > 0, brute)

@@ -112,9 +112,8 @@ class ViBe:
             self._model = shift_image(self._model, dx, dy, image, axis=1)
             self._foreground_run = shift_image(self._foreground_run, dx, dy, 0)
             self._offset = offset
-        count = self._matches(image)
-        foreground = cv2.compare(count, self.min_matches, cv2.CMP_LT)
-        updating = count >= self.min_matches
+        foreground = self._foreground(image)
+        updating = foreground == 0
         if self.absorb_after > 0:
             self._foreground_run = cv2.bitwise_and(cv2.add(self._foreground_run, 1), foreground)
             updating |= self._foreground_run >= self.absorb_after
@@ -141,19 +140,36 @@ class ViBe:
         self._sample_draw = self._rng.integers(0, self.num_samples, size)
         self._direction_draw = self._rng.integers(0, 8, size)
 
-    def _matches(self, image: np.ndarray) -> np.ndarray:
-        """(H, W) uint8 count of model samples within `radius` of each pixel."""
+    def _foreground(self, image: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 mask, 255 where fewer than `min_matches` samples lie within `radius` of the pixel.
+
+        Two passes, same answer as counting all samples: the first few samples are compared over the whole
+        frame, which settles most background pixels; only the pixels still short of matches are compared
+        with the remaining samples.
+        """
+        first = min(self.num_samples, self.min_matches + 2)
         count = np.zeros(image.shape[:2], np.uint8)
-        for sample in self._model:
-            diff = cv2.absdiff(sample, image)
-            if diff.ndim == 3:
-                sq = cv2.multiply(diff, diff, dtype=cv2.CV_32F)
-                _, near = cv2.threshold(sq.sum(axis=2), self.radius**2 - 1e-3, 1, cv2.THRESH_BINARY_INV)
-                near = near.astype(np.uint8)
-            else:
-                _, near = cv2.threshold(diff, int(np.ceil(self.radius)) - 1, 1, cv2.THRESH_BINARY_INV)
-            cv2.add(count, near, count)
-        return count
+        for sample in self._model[:first]:
+            cv2.add(count, self._near(sample, image), count)
+        foreground = cv2.compare(count, self.min_matches, cv2.CMP_LT)
+        open_ = np.flatnonzero(foreground)
+        if first < self.num_samples and len(open_):
+            n = count.size
+            values = image.reshape(n, -1)[open_].astype(np.int32)
+            rest = self._model[first:].reshape(self.num_samples - first, n, -1)[:, open_].astype(np.int32)
+            dist2 = ((rest - values) ** 2).sum(axis=2)
+            matches = count.reshape(n)[open_] + (dist2 < self.radius**2).sum(axis=0)
+            foreground.reshape(n)[open_[matches >= self.min_matches]] = 0
+        return foreground
+
+    def _near(self, sample: np.ndarray, image: np.ndarray) -> np.ndarray:
+        """(H, W) uint8, 1 where `sample` lies within `radius` of `image` (strictly), else 0."""
+        diff = cv2.absdiff(sample, image)
+        if diff.ndim == 3:
+            sq = cv2.multiply(diff, diff, dtype=cv2.CV_32F).sum(axis=2)
+            return (sq < self.radius**2).astype(np.uint8)
+        _, near = cv2.threshold(diff, int(np.ceil(self.radius)) - 1, 1, cv2.THRESH_BINARY_INV)
+        return near
 
     def _chosen(self, n: int) -> np.ndarray:
         """Sorted flat indices of the pixels drawn, each with probability 1/subsampling."""
