@@ -20,6 +20,7 @@ import argparse
 import os
 import sys
 import tempfile
+import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -135,16 +136,22 @@ def stage_calls(enhancer: DwtHsvEnhancer, rgb: np.ndarray) -> dict[str, object]:
     }
 
 
-def interleaved_samples(calls: dict, *, repeats: int) -> dict[str, list[float]]:
-    """Seconds per call of each contender, timed round-robin (one call of each per round), so that a
-    change of machine load during the run hits every contender alike and the ratios stay fair."""
+def interleaved_samples(
+    calls: dict, *, repeats: int
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Wall-clock and CPU seconds per call of each contender, timed round-robin (one call of each per
+    round), so that a change of machine load during the run hits every contender alike and the ratios
+    stay fair. CPU time (all threads of this process) is less sensitive to other processes' load."""
     for call in calls.values():
         time_call(call, repeats=0, warmup=3)
-    samples: dict[str, list[float]] = {name: [] for name in calls}
+    wall: dict[str, list[float]] = {name: [] for name in calls}
+    cpu: dict[str, list[float]] = {name: [] for name in calls}
     for _ in range(repeats):
         for name, call in calls.items():
-            samples[name] += time_call(call, repeats=1, warmup=0)
-    return samples
+            t0 = time.process_time()
+            wall[name] += time_call(call, repeats=1, warmup=0)
+            cpu[name].append(time.process_time() - t0)
+    return wall, cpu
 
 
 def main() -> None:
@@ -167,8 +174,10 @@ def main() -> None:
     calls.update(stage_calls(enhancer, rgb))
 
     load_before = os.getloadavg()
-    samples = interleaved_samples(calls, repeats=args.repeats)
-    results = {name: summarize(s) for name, s in samples.items()}
+    wall, cpu = interleaved_samples(calls, repeats=args.repeats)
+    results = {
+        name: {**summarize(wall[name]), "cpu_median": summarize(cpu[name])["median"]} for name in calls
+    }
     peer_median = results[peer]["median"]
     base_contrast = contrast(rgb, target)
     rows = []
@@ -182,6 +191,7 @@ def main() -> None:
                 stats["median"],
                 stats["p25"],
                 stats["p75"],
+                stats["cpu_median"],
                 stats["ratio_to_peer"],
                 stats.get("contrast", ""),
             ]
@@ -196,7 +206,9 @@ def main() -> None:
         "params": asdict(enhancer),
         "results": results,
     }
-    table = markdown_table(["contender", "median ms", "p25 ms", "p75 ms", f"x {peer}", "contrast"], rows)
+    table = markdown_table(
+        ["contender", "median ms", "p25 ms", "p75 ms", "CPU ms", f"x {peer}", "contrast"], rows
+    )
     md = (
         f"# DWT/HSV enhancement, {WIDTH}x{HEIGHT} frame\n\n"
         f"Frame: {frame_desc}. Median of {args.repeats} calls after 3 warm-up calls, contenders timed "
