@@ -1,0 +1,99 @@
+"""The appearance encoder the tracker uses: a frame and its detection boxes -> L2-normalised features."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from spacetrack.reid.crops import Cropper, check_boxes, frame_tensor
+from spacetrack.reid.network import ReidNet
+
+WEIGHTS_ARTIFACT = "weights/reid.pt"
+
+
+def default_device() -> torch.device:
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+class Encoder:
+    """`encoder(frame_rgb, boxes_tlwh)` -> (N, feature_dim) float32 unit vectors, one per box; no box gives
+    (0, feature_dim). Crops are cut and encoded in batches of `batch_size` on `device`.
+
+    A box partly outside the frame is encoded with black beyond the border (see `Cropper`); a box wholly
+    outside shows nothing of the target, so its row is all zeros: cosine distance 1 to every feature, it can
+    never match by appearance.
+    """
+
+    def __init__(
+        self,
+        net: ReidNet,
+        cropper: Cropper,
+        *,
+        device: str | torch.device | None = None,
+        batch_size: int = 64,
+    ) -> None:
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if (cropper.height, cropper.width) != (net.input_height, net.input_width):
+            raise ValueError(
+                f"cropper makes {cropper.height}x{cropper.width} crops, the network takes "
+                f"{net.input_height}x{net.input_width}"
+            )
+        self.device = torch.device(device) if device is not None else default_device()
+        self.net = net.to(self.device).eval()
+        self.cropper, self.batch_size = cropper, batch_size
+
+    @property
+    def feature_dim(self) -> int:
+        return self.net.feature_dim
+
+    @classmethod
+    def from_weights(cls, path: str | Path, **kwargs) -> Encoder:
+        """An encoder from a weights file written by training (`spacetrack.reid.weights.save_weights`)."""
+        from spacetrack.reid.weights import load_weights
+
+        net, cropper = load_weights(path)
+        return cls(net, cropper, **kwargs)
+
+    @classmethod
+    def from_mlflow(
+        cls, run_id: str, *, artifact_path: str = WEIGHTS_ARTIFACT, tracking_uri: str | None = None, **kwargs
+    ) -> Encoder:
+        """An encoder from the weights a training run logged to MLflow (artifact `weights/reid.pt`)."""
+        import mlflow
+
+        from spacetrack.mlflow_log import tracking_uri as resolve_uri
+
+        local = mlflow.artifacts.download_artifacts(
+            run_id=run_id, artifact_path=artifact_path, tracking_uri=resolve_uri(tracking_uri)
+        )
+        return cls.from_weights(local, **kwargs)
+
+    @torch.no_grad()
+    def __call__(self, frame_rgb: np.ndarray, boxes_tlwh: np.ndarray | list) -> np.ndarray:
+        """Features of the boxes (`tlwh`, pixels) in the RGB uint8 (H, W, 3) frame, (N, feature_dim) float32."""
+        boxes = check_boxes(boxes_tlwh)
+        frame = frame_tensor(frame_rgb, self.device)
+        height, width = frame_rgb.shape[:2]
+        seen = np.flatnonzero(
+            (boxes[:, 0] < width)
+            & (boxes[:, 1] < height)
+            & (boxes[:, 0] + boxes[:, 2] > 0)
+            & (boxes[:, 1] + boxes[:, 3] > 0)
+        )
+        out = np.zeros((len(boxes), self.feature_dim), dtype=np.float32)
+        for start in range(0, len(seen), self.batch_size):
+            rows = seen[start : start + self.batch_size]
+            out[rows] = self.net(self.cropper(frame, boxes[rows])).float().cpu().numpy()
+        return out
+
+    @torch.no_grad()
+    def encode_crops(self, crops: torch.Tensor) -> np.ndarray:
+        """Features of ready (N, 3, H, W) crops in [0, 1], in batches; (N, feature_dim) float32."""
+        out = [
+            self.net(crops[i : i + self.batch_size].to(self.device)).float().cpu()
+            for i in range(0, len(crops), self.batch_size)
+        ]
+        return torch.cat(out).numpy() if out else np.zeros((0, self.feature_dim), dtype=np.float32)

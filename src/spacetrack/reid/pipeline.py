@@ -1,0 +1,134 @@
+"""One re-ID fold end to end: crops of the eight training folds, training, evaluation on fold k's unseen
+identities, weights, metrics and the distance plot written to disk and logged to MLflow."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from torch.utils.data import DataLoader
+
+from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.io import atomic_write_text
+from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
+from spacetrack.reid.crops import Cropper
+from spacetrack.reid.dataset import CropDataset, collect_crops, cut_crops, jitter_augment
+from spacetrack.reid.encoder import Encoder, default_device
+from spacetrack.reid.evaluation import evaluate_features, plot_distances
+from spacetrack.reid.loss import CosineSoftmax
+from spacetrack.reid.train import fit
+from spacetrack.reid.weights import save_weights
+
+
+def _device(name: str) -> torch.device:
+    return default_device() if name == "auto" else torch.device(name)
+
+
+def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) -> dict[str, float]:
+    """Train on every fold but `fold`, evaluate on `fold`; returns the held-out metrics (see evaluation)."""
+    t = cfg.train_reid
+    root = Path(cfg.dataset)
+    train_seqs, val_seqs = split_sequences(load_manifest(root), fold)
+    out = Path(cfg.output_dir) / f"fold{fold}"
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(t.seed)
+    device = _device(t.device)
+    cropper: Cropper = instantiate(cfg.model.crop)
+    net = instantiate(cfg.model.net)
+    select = dict(min_visibility=t.min_visibility, min_box_size=t.min_box_size)
+    train_table = collect_crops(
+        root, train_seqs, include_static=t.include_static, frame_stride=t.frame_stride, **select
+    )
+    # Evaluation asks about what the tracker tracks: moving targets only.
+    val_table = collect_crops(
+        root, val_seqs, include_static=False, frame_stride=t.eval_frame_stride, **select
+    )
+    started = time.perf_counter()
+    train_crops = cut_crops(root, train_table, cropper, scale=t.context, image_dir=cfg.image_dir)
+    val_crops = cut_crops(root, val_table, cropper, image_dir=cfg.image_dir)
+    augment = jitter_augment(height=cropper.height, width=cropper.width, **t.augment)
+    dataset = CropDataset(
+        train_crops,
+        train_table.identity,
+        height=cropper.height,
+        width=cropper.width,
+        augment=augment,
+        seed=t.seed,
+    )
+    loader = DataLoader(
+        dataset,
+        batch_size=t.batch_size,
+        shuffle=True,
+        drop_last=len(dataset) >= t.batch_size,
+        num_workers=t.workers,
+        generator=torch.Generator().manual_seed(t.seed),
+    )
+    head = CosineSoftmax(feature_dim=net.feature_dim, num_classes=len(train_table.names))
+    with start_run(cfg, run_name=f"fold{fold}", parent_run_id=parent_run_id, tags={"fold": str(fold)}):
+        sizes = {
+            "train_identities": len(train_table.names),
+            "train_crops": len(train_table),
+            "val_identities": len(val_table.names),
+            "val_crops": len(val_table),
+            "crop_seconds": time.perf_counter() - started,
+        }
+        log_metrics_step(sizes, step=0)
+
+        def on_epoch(epoch: int, stats: dict[str, float]) -> None:
+            log_metrics_step(stats, step=epoch)
+            print(
+                f"fold {fold} epoch {epoch + 1}/{t.epochs}: "
+                + ", ".join(f"{k}={v:.4g}" for k, v in stats.items())
+            )
+
+        started = time.perf_counter()
+        stats = fit(
+            net,
+            head,
+            loader,
+            epochs=t.epochs,
+            lr=t.lr,
+            weight_decay=t.weight_decay,
+            warmup_epochs=t.warmup_epochs,
+            device=device,
+            on_epoch=on_epoch,
+        )
+        train_seconds = time.perf_counter() - started
+        weights = out / "reid.pt"
+        save_weights(
+            weights,
+            net.cpu(),
+            net_kwargs=_kwargs(cfg.model.net),
+            crop_kwargs=_kwargs(cfg.model.crop),
+        )
+        encoder = Encoder(net, cropper, device=device, batch_size=t.eval_batch_size)
+        features = encoder.encode_crops(torch.from_numpy(val_crops).permute(0, 3, 1, 2).float().div(255.0))
+        metrics, arrays = evaluate_features(
+            features,
+            val_table.identity,
+            val_table.sequence,
+            val_table.frame,
+            exclude_frames=t.exclude_frames,
+            window=t.gallery_window,
+            thresholds=list(t.thresholds),
+        )
+        metrics |= {**sizes, **stats, "train_seconds": train_seconds}
+        log_metrics_step(metrics, step=t.epochs)
+        plot = out / "distances.png"
+        plot_distances(arrays, list(t.thresholds), plot, title=f"{root.name}: held-out fold {fold}")
+        np.savez_compressed(out / "distances.npz", **arrays)
+        atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+        for path in (plot, out / "metrics.json", out / "distances.npz"):
+            log_artifact_file(path)
+        log_artifact_file(weights, "weights")
+    return metrics
+
+
+def _kwargs(node: DictConfig) -> dict:
+    """Constructor keywords of a `_target_` config node."""
+    return {k: v for k, v in OmegaConf.to_container(node, resolve=True).items() if k != "_target_"}
