@@ -35,6 +35,23 @@ def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
     assert (tmp_path / "run" / "weights" / "best.pt").is_file()
     assert (tmp_path / "run" / "plots" / "pr_curve.png").is_file()
     assert (tmp_path / "run" / "plots" / "val_predictions.png").is_file()
+    # Resuming the finished run from its last checkpoint goes to the same folder and changes nothing.
+    last = tmp_path / "run" / "weights" / "last.pt"
+    again = run(
+        config(tiny_dataset, tmp_path / "elsewhere", "fold=3", "model=yolov5s_gam_light", f"resume={last}")
+    )
+    assert again == result
+    with pytest.raises(ValueError, match="image_size: checkpoint 64, configured 96"):
+        run(
+            config(
+                tiny_dataset,
+                tmp_path,
+                "fold=3",
+                "model=yolov5s_gam_light",
+                f"resume={last}",
+                "train.image_size=96",
+            )
+        )
 
 
 @pytest.mark.parametrize("fold", [-1, 9])
