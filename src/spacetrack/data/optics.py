@@ -77,24 +77,26 @@ def _draw_planet(sky: np.ndarray, planet: dict, pad: tuple[int, int], sun_dir: n
     sky += (0.35 * halo * limb_light)[..., None] * np.array([0.35, 0.55, 1.0], dtype=np.float32)
 
 
-def stray_light(*, width: int, height: int, source_uv: np.ndarray, glare: float, flare: float) -> np.ndarray:
-    """Veiling glare from a bright source at `source_uv` plus flare ghosts along the axis through the centre."""
+def stray_light(
+    rng: np.random.Generator, *, width: int, height: int, source_uv: np.ndarray, glare: float, flare: float
+) -> np.ndarray:
+    """Veiling glare from a bright source at `source_uv` plus flare ghosts along the axis through the centre.
+
+    The ghosts (how many, where along the axis, their size and tint) are drawn from `rng`.
+    """
     yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
     diag = np.hypot(width, height)
     dist = np.hypot(xx - source_uv[0], yy - source_uv[1])
     veil = glare * (1.0 / (1.0 + (dist / (0.12 * diag)) ** 2)) ** 1.5
     out = np.repeat(veil[..., None], 3, axis=2) * np.array([1.0, 0.97, 0.9], dtype=np.float32)
     if flare > 0:
-        centre = np.array([width / 2, height / 2])
-        axis = centre - source_uv
-        tints = np.array(
-            [[0.5, 0.8, 1.0], [1.0, 0.6, 0.3], [0.6, 1.0, 0.6], [0.9, 0.5, 1.0]], dtype=np.float32
-        )
-        for k, (along, size) in enumerate(((0.6, 0.05), (1.1, 0.03), (1.5, 0.08), (1.9, 0.04))):
-            cu, cv = source_uv + along * axis
-            r = size * diag
-            ring = np.clip(1.0 - np.hypot(xx - cu, yy - cv) / r, 0.0, 1.0) ** 0.5
-            out += (flare * 0.15 * ring)[..., None] * tints[k]
+        axis = np.array([width / 2, height / 2]) - source_uv
+        for _ in range(int(rng.integers(3, 6))):
+            cu, cv = source_uv + rng.uniform(0.4, 2.0) * axis
+            radius = rng.uniform(0.02, 0.09) * diag
+            tint = rng.uniform(0.3, 1.0, size=3).astype(np.float32)
+            ring = np.clip(1.0 - np.hypot(xx - cu, yy - cv) / radius, 0.0, 1.0) ** 0.5
+            out += (flare * 0.12 * ring)[..., None] * tint
     return out.astype(np.float32)
 
 

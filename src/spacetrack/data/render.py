@@ -160,7 +160,12 @@ class SequenceRenderer:
         self.stray = None
         if plan.glare_uv is not None:
             self.stray = optics.stray_light(
-                width=cam.width, height=cam.height, source_uv=plan.glare_uv, glare=p.glare, flare=p.flare
+                sky_rng,
+                width=cam.width,
+                height=cam.height,
+                source_uv=plan.glare_uv,
+                glare=p.glare,
+                flare=p.flare,
             )
 
     def offset(self, t: int) -> np.ndarray:
