@@ -150,3 +150,9 @@ def test_reader_names_file_line_and_value(tmp_path):
         read_mot_file(path)
     path.write_text("")
     assert read_mot_file(path).shape == (0, 9)
+
+
+def test_scoring_keeps_the_log_clean(caplog):
+    caplog.set_level("INFO")
+    evaluate({"s": (_mot([(1, 1, 0, 0, 20, 20)]), _mot([(1, 5, 0, 0, 20, 20)]))})
+    assert "seconds" not in caplog.text  # motmetrics' timing messages

@@ -9,7 +9,10 @@ optimal assignment pairs with one of them is dropped rather than counted as a fa
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import logging
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
 
 import motmetrics as mm
 import numpy as np
@@ -36,6 +39,22 @@ _MM_METRICS = {
     "num_gt_ids": "num_unique_objects",
     "num_frames": "num_frames",
 }
+
+
+@contextmanager
+def _quiet_motmetrics() -> Iterator[None]:
+    """Drop motmetrics' timing messages, which it sends to the root logger at INFO level."""
+    package = str(Path(mm.__file__).parent)
+
+    def quiet(record: logging.LogRecord) -> bool:
+        return not record.pathname.startswith(package)
+
+    root = logging.getLogger()
+    root.addFilter(quiet)
+    try:
+        yield
+    finally:
+        root.removeFilter(quiet)
 
 
 def iou_distance(gt_tlwh: np.ndarray, hyp_tlwh: np.ndarray, iou_threshold: float = 0.5) -> np.ndarray:
@@ -93,12 +112,13 @@ def summarize(accumulators: Mapping[str, mm.MOTAccumulator]) -> dict[str, dict[s
     """
     names = list(accumulators)
     host = mm.metrics.create()
-    frame = host.compute_many(
-        [accumulators[n] for n in names],
-        metrics=list(_MM_METRICS.values()),
-        names=names,
-        generate_overall=True,
-    )
+    with _quiet_motmetrics():
+        frame = host.compute_many(
+            [accumulators[n] for n in names],
+            metrics=list(_MM_METRICS.values()),
+            names=names,
+            generate_overall=True,
+        )
     frame = frame.rename(index={"OVERALL": OVERALL})
     out: dict[str, dict[str, float]] = {}
     for name, row in frame.iterrows():
