@@ -87,6 +87,9 @@ def test_bad_shapes_are_refused(tmp_path, array, message):
 def test_missing_and_unreadable_files(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.npy"):
         load_detections(tmp_path / "nope.npy")
+    (tmp_path / "zero.npy").write_bytes(b"")
+    with pytest.raises(DetectionFileError, match="zero.npy: empty file"):
+        load_detections(tmp_path / "zero.npy")
     (tmp_path / "text.npy").write_text("frame,id\n")
     with pytest.raises(DetectionFileError, match="text.npy: not a readable .npy file"):
         load_detections(tmp_path / "text.npy")

@@ -57,6 +57,8 @@ def load_detections(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"detection file {path} not found")
+    if path.stat().st_size == 0:
+        raise DetectionFileError(f"{path}: empty file (0 bytes); expected an N x (10 + D) array: {LAYOUT}")
     with path.open("rb") as f:
         if f.read(6) != b"\x93NUMPY":
             raise DetectionFileError(f"{path}: not a readable .npy file (no NumPy header); expected {LAYOUT}")
