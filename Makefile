@@ -11,6 +11,7 @@ ARGS ?=
 .PHONY: track-detections evaluate bench-tracker
 .PHONY: train cv bench-detector
 .PHONY: eval-motion bench-motion
+.PHONY: train-reid cv-reid bench-reid
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -88,7 +89,16 @@ eval-motion: $(STAMP) $(MOTION_DATA)/manifest.json ## score the motion detectors
 bench-motion: $(STAMP) ## time every motion detector per 640x480 frame against OpenCV MOG2 (Table 3) -> reports/motion.json
 	$(PY) benchmarks/bench_motion.py $(ARGS)
 
-bench: bench-enhance bench-tracker bench-detector bench-motion ## run every benchmark
+train-reid: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the re-ID CNN (Table 1): evaluate on FOLD's unseen identities (default 3); ARGS="train_reid=full"
+	$(PY) -m spacetrack.train_reid fold=$(FOLD) $(ARGS)
+
+cv-reid: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the re-ID CNN (Hydra multirun, one MLflow parent run)
+	$(PY) -m spacetrack.train_reid -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
+
+bench-reid: $(STAMP) ## re-ID encoder ms per crop at batch 1 and 32 against per-box OpenCV crops -> reports/reid.json
+	$(PY) benchmarks/bench_reid.py $(ARGS)
+
+bench: bench-enhance bench-tracker bench-detector bench-motion bench-reid ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun

@@ -1,4 +1,4 @@
-"""The train_reid entry point on the real configs: one fold, determinism, and a logged cross-validation."""
+"""The train_reid entry point on the real configs: one fold, determinism, fold runs under a CV parent."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from spacetrack.config import compose_config
-from spacetrack.mlflow_log import PARENT_RUN_TAG
+from spacetrack.mlflow_log import PARENT_RUN_TAG, cv_parent_summary, start_run
 from spacetrack.reid import Encoder
 from spacetrack.train_reid import run
 
@@ -47,23 +47,22 @@ def test_one_fold_writes_weights_metrics_and_plot_deterministically(tiny_dataset
         torch.testing.assert_close(b["model"][key], value, rtol=0, atol=0)
 
 
-def test_cross_validation_logs_parent_and_fold_runs(tiny_dataset, tmp_path) -> None:
+def test_fold_runs_are_children_of_the_cross_validation_parent(tiny_dataset, tmp_path) -> None:
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    cfg = compose_config(
-        "train_reid", overrides(tiny_dataset, tmp_path / "cv", f"logger.tracking_uri={uri}", "cv=true")
-    )
-    summary = run(cfg)
-    assert set(summary) >= {"rank1_mean", "rank1_std", "mAP_mean", "pair_same_below_0.1_mean"}
+    base = overrides(tiny_dataset, tmp_path / "cv", f"logger.tracking_uri={uri}")
+    with start_run(compose_config("train_reid", base), run_name="cross-validation") as parent:
+        parent_id = parent.info.run_id
+        for fold in (0, 1):
+            run(compose_config("train_reid", [*base, f"fold={fold}", f"cv_parent_run_id={parent_id}"]))
+        summary = cv_parent_summary(parent_id, ["rank1", "pair_same_below_0.1"])
+    assert set(summary) == {"rank1_mean", "rank1_std", "pair_same_below_0.1_mean", "pair_same_below_0.1_std"}
     client = mlflow.MlflowClient(uri)
-    experiment = client.get_experiment_by_name("reid")
-    runs = client.search_runs([experiment.experiment_id])
-    parent = next(r for r in runs if r.info.run_name == "cv")
-    children = [r for r in runs if r.data.tags.get(PARENT_RUN_TAG) == parent.info.run_id]
+    runs = client.search_runs([client.get_experiment_by_name("reid").experiment_id])
+    children = [r for r in runs if r.data.tags.get(PARENT_RUN_TAG) == parent_id]
     assert sorted(r.info.run_name for r in children) == ["fold0", "fold1"]
-    assert parent.data.metrics["rank1_mean"] == summary["rank1_mean"]
     child = children[0]
-    artifacts = {a.path for a in client.list_artifacts(child.info.run_id)}
-    assert {"distances.png", "metrics.json", "weights"} <= artifacts
+    assert {"distances.png", "metrics.json", "weights"} <= {
+        a.path for a in client.list_artifacts(child.info.run_id)
+    }
     encoder = Encoder.from_mlflow(child.info.run_id, tracking_uri=uri, device="cpu")
-    frame = np.zeros((32, 32, 3), np.uint8)
-    assert encoder(frame, [[2, 2, 8, 8]]).shape == (1, 128)
+    assert encoder(np.zeros((32, 32, 3), np.uint8), [[2, 2, 8, 8]]).shape == (1, 128)
