@@ -1,7 +1,7 @@
 import numpy as np
 
 from spacetrack.motion import KNN, MOG2, FiveFrameDifference, Fusion, ViBe
-from spacetrack.motion.fusion import fill_regions
+from spacetrack.motion.fusion import confirmed_regions, fill_regions
 
 
 def _fusion(**kwargs) -> Fusion:
@@ -72,3 +72,16 @@ def test_fusion_beats_its_parts_on_a_textured_target_with_stars(scene, run):
         fn = sum((~m & truth[t]).sum() for t, m in masks.items())
         scores[name] = 2 * tp / (2 * tp + fp + fn)
     assert scores["fusion"] > max(scores["five"], scores["vibe"])
+
+
+def test_confirmed_regions_keeps_whole_regions_with_enough_evidence():
+    body = np.zeros((20, 30), np.uint8)
+    body[2:10, 2:10] = 255
+    body[5:7, 5:7] = 0  # a hole: filled in the output
+    body[12:18, 20:28] = 255  # no evidence: dropped
+    evidence = np.zeros_like(body)
+    evidence[2, 2:5] = 255  # three pixels on the first region's rim
+    evidence[0, 29] = 255  # evidence outside any region: ignored
+    out = confirmed_regions(body, evidence, min_support=3)
+    assert (out[2:10, 2:10] == 255).all() and out.sum() == 64 * 255
+    assert not confirmed_regions(body, evidence, min_support=4).any()

@@ -42,16 +42,11 @@ def confirmed_regions(
     """The regions of `body` (0/255, holes filled) holding >= `min_support` pixels of `evidence`: an 'and'
     of regions instead of pixels. Regions enclosing < `min_area` px² are dropped."""
     kept = []
-    contours = outlines(body, min_area=min_area)
-    if contours:
-        ids = np.zeros(body.shape, np.int32)
-        for i, contour in enumerate(contours):
-            cv2.drawContours(ids, [contour], -1, i + 1, thickness=cv2.FILLED)
-        points = cv2.findNonZero(evidence)
-        if points is not None:
-            x, y = points.reshape(-1, 2).T
-            votes = np.bincount(ids[y, x], minlength=len(contours) + 1)
-            kept = [c for i, c in enumerate(contours) if votes[i + 1] >= min_support]
+    for contour in outlines(body, min_area=min_area):
+        x, y, w, h = cv2.boundingRect(contour)
+        region = cv2.drawContours(np.zeros((h, w), np.uint8), [contour], -1, 255, cv2.FILLED, offset=(-x, -y))
+        if cv2.countNonZero(cv2.bitwise_and(region, evidence[y : y + h, x : x + w])) >= min_support:
+            kept.append(contour)
     return cv2.drawContours(np.zeros_like(body), kept, -1, 255, thickness=cv2.FILLED)
 
 

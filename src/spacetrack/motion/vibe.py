@@ -7,13 +7,17 @@ replace one random sample of their own model with probability 1/`subsampling`, a
 probability, one random sample of a random 8-neighbour's model (spatial propagation, which lets ghosts
 dissolve into the background from their borders). Foreground pixels do not update (conservative,
 memoryless update: eqs. 3-4) until they have been foreground for `absorb_after` frames in a row: then they
-update like background, so a target that stopped becomes background (the paper's threshold T). The model starts from the first frame: each sample is the
-value of a random pixel in the 3x3 neighbourhood, so the first frame already has a mask (latency 0).
-One deliberate change: the first `min_matches` samples are the pixel's own value. Otherwise a star one
-pixel wide, whose neighbours are black, starts as foreground and stays so (foreground never updates).
+update like background, so a target that stopped becomes background (the paper's threshold T). The
+model starts from the first frame: each sample is the value of a random pixel in the 3x3 neighbourhood,
+so the first frame already has a mask (latency 0).
 
-The per-pixel random draws are slices at random offsets of fixed random tables (as in the reference
-implementation), so a frame costs no fresh random numbers per pixel.
+Two deliberate changes. The first `min_matches` samples are the pixel's own value: otherwise a star one
+pixel wide, whose neighbours are black, starts as foreground and stays so (foreground never updates).
+And the update is vectorised: which pixels update is drawn per pixel (a slice at a random offset of a
+fixed random table, as in the reference implementation), but the sample to replace and the neighbour's
+direction are drawn once per frame for all of them. Each pixel still sees a uniformly random sample and
+direction from frame to frame, which is all its memoryless update needs (eqs. 3-4), and an update is then
+two masked copies instead of thousands of scattered writes.
 """
 
 from __future__ import annotations
@@ -113,10 +117,11 @@ class ViBe:
             self._foreground_run = shift_image(self._foreground_run, dx, dy, 0)
             self._offset = offset
         foreground = self._foreground(image)
-        updating = foreground == 0
+        updating = cv2.bitwise_not(foreground)
         if self.absorb_after > 0:
             self._foreground_run = cv2.bitwise_and(cv2.add(self._foreground_run, 1), foreground)
-            updating |= self._foreground_run >= self.absorb_after
+            absorbed = cv2.compare(self._foreground_run, self.absorb_after, cv2.CMP_GE)
+            updating = cv2.bitwise_or(updating, absorbed)
         self._update(image, updating)
         return foreground
 
@@ -134,11 +139,8 @@ class ViBe:
         self._model = np.stack(samples)
 
     def _tables(self, n: int) -> None:
-        # Twice the frame size, read from a random offset below n each frame.
-        size = 2 * n
-        self._hit_positions = np.flatnonzero(self._rng.random(size) < 1.0 / self.subsampling)
-        self._sample_draw = self._rng.integers(0, self.num_samples, size)
-        self._direction_draw = self._rng.integers(0, 8, size)
+        # 255 with probability 1/subsampling; twice the frame size, read at a random offset each frame.
+        self._hits = np.where(self._rng.random(2 * n) < 1.0 / self.subsampling, 255, 0).astype(np.uint8)
 
     def _foreground(self, image: np.ndarray) -> np.ndarray:
         """(H, W) uint8 mask, 255 where fewer than `min_matches` samples lie within `radius` of the pixel.
@@ -171,29 +173,22 @@ class ViBe:
         _, near = cv2.threshold(diff, int(np.ceil(self.radius)) - 1, 1, cv2.THRESH_BINARY_INV)
         return near
 
-    def _chosen(self, n: int) -> np.ndarray:
-        """Sorted flat indices of the pixels drawn, each with probability 1/subsampling."""
+    def _drawn(self, updating: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 mask: the pixels of `updating` (0/255) drawn, each with probability 1/subsampling."""
+        n = updating.size
         start = int(self._rng.integers(0, n))
-        lo, hi = np.searchsorted(self._hit_positions, [start, start + n])
-        return self._hit_positions[lo:hi] - start
-
-    def _pick(self, table: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-        """One random draw from `table` per pixel in `pixels`."""
-        return table[int(self._rng.integers(0, len(table) // 2)) + pixels]
+        return cv2.bitwise_and(updating, self._hits[start : start + n].reshape(updating.shape))
 
     def _update(self, image: np.ndarray, updating: np.ndarray) -> None:
-        """Conservative random update of the pixels marked in `updating` (bool (H, W)) and their neighbours."""
-        h, w = updating.shape
-        n = h * w
-        channels = image.shape[2:]
-        flat_model = self._model.reshape(self.num_samples * n, *channels)
-        flat_image = image.reshape(n, *channels)
-        may_update = updating.reshape(n)
-        own = self._chosen(n)
-        own = own[may_update[own]]
-        flat_model[self._pick(self._sample_draw, own) * n + own] = flat_image[own]
-        src = self._chosen(n)
-        src = src[may_update[src]]
-        dy, dx = _NEIGHBOURS[self._pick(self._direction_draw, src)].T
-        target = np.clip(src // w + dy, 0, h - 1) * w + np.clip(src % w + dx, 0, w - 1)
-        flat_model[self._pick(self._sample_draw, src) * n + target] = flat_image[src]
+        """Random conservative update of the pixels in `updating` (uint8 (H, W), 255 = may update).
+
+        Drawn pixels copy their value into one sample of their own model, other drawn pixels into one
+        sample of their neighbour's model in one direction; sample and direction are random per frame.
+        """
+        own = self._model[int(self._rng.integers(0, self.num_samples))]
+        cv2.copyTo(image, self._drawn(updating), own)  # writes into `own` in place
+        dy, dx = (int(v) for v in _NEIGHBOURS[int(self._rng.integers(0, 8))])
+        # moving the values and the mask by (dx, dy) lands pixel (y, x) on its neighbour (y + dy, x + dx)
+        moved = shift_image(image, dx, dy, 0)
+        drawn = shift_image(self._drawn(updating), dx, dy, 0)
+        cv2.copyTo(moved, drawn, self._model[int(self._rng.integers(0, self.num_samples))])
