@@ -37,6 +37,8 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
     out = Path(cfg.output_dir) / f"fold{fold}"
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(t.seed)
+    if t.threads:
+        torch.set_num_threads(t.threads)
     device = _device(t.device)
     cropper: Cropper = instantiate(cfg.model.crop)
     net = instantiate(cfg.model.net)
