@@ -47,3 +47,20 @@ def test_inactive_tracks_are_forgotten():
     with pytest.raises(KeyError):
         metric.distance(np.eye(3), [1])
     np.testing.assert_allclose(metric.distance(np.eye(3), [2]), [[1.0, 0.0, 1.0]])
+
+
+def test_only_admissible_pairs_are_computed_and_the_rest_are_inf():
+    rng = np.random.default_rng(2)
+    metric = NearestNeighborDistanceMetric(max_cosine_distance=0.2, nn_budget=5)
+    gallery = _unit(rng.normal(size=(12, 6)))
+    targets = np.repeat([4, 8, 9], 4)
+    metric.partial_fit(gallery, targets, [4, 8, 9])
+    queries = _unit(rng.normal(size=(7, 6)))
+    admissible = rng.random((3, 7)) < 0.4
+    admissible[1] = False  # a track with nothing in its gate
+    got = metric.distance(queries, [4, 8, 9], admissible)
+    full = metric.distance(queries, [4, 8, 9])
+    np.testing.assert_allclose(got[admissible], full[admissible], atol=1e-12)
+    assert np.isinf(got[~admissible]).all()
+    expected = np.stack([(1 - gallery[targets == t] @ queries.T).min(axis=0) for t in [4, 8, 9]])
+    np.testing.assert_allclose(full, expected, atol=1e-12)

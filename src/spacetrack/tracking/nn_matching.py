@@ -91,14 +91,32 @@ class NearestNeighborDistanceMetric:
         self._bank[slots, self._count[slots] % capacity] = features
         self._count[slots] += 1
 
-    def distance(self, features: np.ndarray, targets: list[int]) -> np.ndarray:
-        """(len(targets), N) matrix of eq. (13): min over each target's gallery of 1 - r_m . r_k."""
+    def distance(
+        self, features: np.ndarray, targets: list[int], admissible: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(len(targets), N) matrix of eq. (13): min over each target's gallery of 1 - r_m . r_k.
+
+        `admissible` (len(targets), N) bool limits the work to the pairs that can still match (those
+        inside the motion gate); the others come back as inf. Each track is compared with only its
+        own admissible detections, packed into a (tracks, k, D) batch, so the cost grows with the
+        number of admissible pairs rather than tracks x detections.
+        """
         features = np.asarray(features, dtype=float)
-        if not len(targets) or not len(features):
-            return np.zeros((len(targets), len(features)))
-        slots = np.array([self._slot[t] for t in targets])
-        # Rows past the fullest requested gallery hold only repeats: leave them out of the product.
+        out = np.full((len(targets), len(features)), np.inf)
+        if admissible is None:
+            admissible = np.ones(out.shape, bool)
+        rows, cols = np.nonzero(admissible)
+        if not len(rows):
+            return out
+        per_row = np.bincount(rows, minlength=len(targets))
+        used = np.flatnonzero(per_row)
+        position = np.arange(len(rows)) - np.repeat(np.cumsum(per_row) - per_row, per_row)
+        batch_row = np.searchsorted(used, rows)
+        packed = np.zeros((len(used), int(per_row.max()), features.shape[1]))
+        packed[batch_row, position] = features[cols]
+        slots = np.array([self._slot[targets[i]] for i in used])
+        # Rows past the fullest gallery involved hold only repeats: leave them out of the product.
         filled = min(self._bank.shape[1], int(self._count[slots].max()))
-        gallery = self._bank[slots, :filled]
-        similarity = gallery.reshape(-1, gallery.shape[2]) @ features.T
-        return 1.0 - similarity.reshape(len(slots), filled, -1).max(axis=1)
+        similarity = np.matmul(self._bank[slots, :filled], packed.transpose(0, 2, 1)).max(axis=1)
+        out[rows, cols] = 1.0 - similarity[batch_row, position]
+        return out

@@ -112,11 +112,13 @@ class Tracker:
     ) -> np.ndarray:
         """Eq. (15) over the pairs, with pairs outside either gate (eqs. 12, 14) set to INFTY_COST."""
         tracks = [self.tracks[i] for i in track_idx]
-        cosine = self.metric.distance(detections.feature[det_idx], [t.track_id for t in tracks])
         mahalanobis = self.kf.gating_distance(*self._states(tracks), detections.subset(det_idx).to_xyah())
-        cost = self.lambda_ * mahalanobis + (1.0 - self.lambda_) * cosine
-        gated = (mahalanobis > self.gating_threshold) | (cosine > self.metric.matching_threshold)
-        cost[gated] = INFTY_COST
+        inside = mahalanobis <= self.gating_threshold
+        # Pairs outside the motion gate can never match, so their appearance is not even computed.
+        cosine = self.metric.distance(detections.feature[det_idx], [t.track_id for t in tracks], inside)
+        admissible = inside & (cosine <= self.metric.matching_threshold)
+        cost = np.full(mahalanobis.shape, INFTY_COST)
+        cost[admissible] = self.lambda_ * mahalanobis[admissible] + (1.0 - self.lambda_) * cosine[admissible]
         return cost
 
     def _iou_cost(self, detections: Detections, track_idx: list[int], det_idx: list[int]) -> np.ndarray:
