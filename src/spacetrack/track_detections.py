@@ -18,7 +18,7 @@ from spacetrack.config import CONF_DIR
 from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.tracking import track_sequence
-from spacetrack.tracking.io import load_detections, write_mot_results
+from spacetrack.tracking.io import DETECTION_COLUMNS, DetectionFileError, load_detections, write_mot_results
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +33,11 @@ def run(cfg: DictConfig) -> dict[str, float]:
     if not output.parent.is_dir():
         raise FileNotFoundError(f"output folder {output.parent} does not exist (writing {output.name})")
     dets = load_detections(cfg.detections)
+    if dets.shape[1] == len(DETECTION_COLUMNS) and cfg.tracker.max_cosine_distance is not None:
+        raise DetectionFileError(
+            f"{cfg.detections}: no appearance features (10 columns), but the tracker matches by "
+            "appearance; use tracker=sort (or tracker.max_cosine_distance=null) for boxes alone"
+        )
     gt = read_mot_file(cfg.gt) if cfg.gt else None
     tracker = instantiate(cfg.tracker)
     with start_run(cfg, run_name=Path(cfg.detections).stem):

@@ -80,6 +80,16 @@ def test_bad_input_writes_nothing(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dets.npy", "gt.txt"]  # no output, no temp file
 
 
+def test_boxes_without_features_need_the_sort_preset(tmp_path):
+    dets, truth = _write_sequence(tmp_path)
+    np.save(dets, np.load(dets)[:, :10])
+    out = tmp_path / "out.txt"
+    with pytest.raises(ValueError, match="dets.npy: no appearance features"):
+        run(_compose(f"detections={dets}", f"output={out}"))
+    metrics = run(_compose(f"detections={dets}", f"output={out}", f"gt={truth}", "tracker=sort"))
+    assert metrics["idsw"] == 0 and metrics["num_tracks"] == 2
+
+
 def test_run_logs_to_mlflow(tmp_path):
     mlflow = pytest.importorskip("mlflow")
     dets, truth = _write_sequence(tmp_path, num_frames=10)
