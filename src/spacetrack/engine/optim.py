@@ -23,10 +23,12 @@ def build_optimizer(model: nn.Module, *, lr0: float, momentum: float, weight_dec
             bn_weights.append(module.weight)
         elif isinstance(getattr(module, "weight", None), nn.Parameter):
             weights.append(module.weight)
-    optimizer = torch.optim.SGD(bn_weights, lr=lr0, momentum=momentum, nesterov=True)
-    optimizer.add_param_group({"params": weights, "weight_decay": weight_decay})
-    optimizer.add_param_group({"params": biases, "weight_decay": 0.0})
-    return optimizer
+    groups = [
+        {"params": bn_weights, "weight_decay": 0.0},
+        {"params": weights, "weight_decay": weight_decay},
+        {"params": biases, "weight_decay": 0.0},
+    ]
+    return torch.optim.SGD(groups, lr=lr0, momentum=momentum, nesterov=True)
 
 
 def lr_factor(epoch: float, *, epochs: int, lrf: float, schedule: str) -> float:
