@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -48,3 +49,20 @@ def test_compensation_keeps_a_slewing_star_field_still(run, cls):
     compensated = run(cls(compensate=True), frames)
     assert max(m.sum() for m in plain.values()) > 200
     assert all(m.sum() == 0 for m in compensated.values())
+
+
+def test_sub_pixel_slew_of_blurred_stars_is_not_motion_once_compensated(run):
+    # stars on a 4x finer grid moved by (6, 2) fine pixels a frame: a slew of (1.5, 0.5) pixels
+    rng = np.random.default_rng(2)
+    fine = np.zeros((96 * 4 * 2, 128 * 4 * 2), np.float32)
+    fine[rng.integers(0, fine.shape[0], 400), rng.integers(0, fine.shape[1], 400)] = 255 * 16
+    fine = cv2.GaussianBlur(fine, (0, 0), 4.0)
+    frames = []
+    for t in range(10):
+        window = fine[200 - 2 * t : 200 - 2 * t + 384, 200 - 6 * t : 200 - 6 * t + 512]
+        coarse = cv2.resize(window, (128, 96), interpolation=cv2.INTER_AREA) + rng.normal(0, 1.5, (96, 128))
+        frames.append(np.clip(coarse + 8, 0, 255).astype(np.uint8))
+    plain = run(FiveFrameDifference(threshold=10), frames)
+    compensated = run(FiveFrameDifference(threshold=10, compensate=True), frames)
+    assert sum(m.sum() for m in plain.values()) > 50
+    assert sum(m.sum() for m in compensated.values()) < 5

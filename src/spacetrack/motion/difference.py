@@ -18,6 +18,8 @@ import numpy as np
 from spacetrack.motion.compensation import SceneShift, shift_image
 from spacetrack.motion.frames import FrameGuard, match_exposure, to_grey
 
+_NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
+
 
 def binarise(diff: np.ndarray, *, alpha: float, threshold: float) -> np.ndarray:
     """Moving pixels of an absolute grey difference image: uint8 255 where diff >= T_k, else 0.
@@ -37,7 +39,8 @@ class FrameDifference(ABC):
     Args:
         alpha: weight of the mean absolute difference in the adaptive threshold (eq. 17), unitless.
         threshold: fixed part T of the threshold, grey levels (0-255).
-        compensate: register frames against global camera motion before differencing.
+        compensate: register frames against global camera motion before differencing (and compare each
+            pixel with the 3x3 neighbourhood of the other frame, to absorb sub-pixel residuals).
         match_exposure: scale every frame of the window to the mean grey level of the frame the mask
             refers to, so an exposure step (all pixels times a gain) is not motion.
     """
@@ -90,7 +93,17 @@ class FrameDifference(ABC):
         return self._combine(aligned)
 
     def _moving(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return binarise(cv2.absdiff(a, b), alpha=self.alpha, threshold=self.threshold)
+        """Moving pixels of frame `a` against frame `b` (uint8 0/255)."""
+        if self.compensate:
+            # Registration moves frames by whole pixels while the camera slews by fractions of one: a pixel
+            # changes only if it lies outside the range of b's 3x3 neighbourhood, so a star's edge
+            # shifted by under a pixel is not motion.
+            diff = cv2.max(
+                cv2.subtract(a, cv2.dilate(b, _NEIGHBOURHOOD)), cv2.subtract(cv2.erode(b, _NEIGHBOURHOOD), a)
+            )
+        else:
+            diff = cv2.absdiff(a, b)
+        return binarise(diff, alpha=self.alpha, threshold=self.threshold)
 
     @abstractmethod
     def _combine(self, frames: list[np.ndarray]) -> np.ndarray:

@@ -4,8 +4,9 @@ Both masks are smoothed (Gaussian filter, re-binarised) and closed (morphology),
 'and', split into regions (tiny ones dropped), their holes filled, and the result smoothed by a
 last Gaussian filter. The difference cannot keep a target that stopped, and the background model supplies
 the full body that the difference leaves hollow; the 'and' keeps only what both agree on, so light changes
-(which the difference's adaptive threshold ignores) and ghosts (which the background model does not have)
-both drop out.
+(which the difference's adaptive threshold ignores) and ghosts (which the difference does not have) both
+drop out. The 'and' is the paper's pixel-wise one (`combine="pixel"`) or, by default, region-wise: a
+background region is kept whole when the difference confirms it (`confirmed_regions`).
 """
 
 from __future__ import annotations
