@@ -7,21 +7,24 @@ Contenders, timed in the same run on the same synthetic detections:
 
 Both run the Table 2 "original" association settings (cosine 0.2, IoU 0.7, n_init 3, budget 100,
 max_age 70) with NMS off (the peer skips it at overlap 1) and no confidence floor (the peer has none),
-on the same per-frame detections sorted by confidence. Each synthetic sequence has targets moving
-with noise, 128-D features scattered around a per-target mean and 10% missed detections. Only the
-tracker is timed: the per-frame inputs are built beforehand in each contender's own format. The report
-also states how many written boxes (id and box to 0.01 px) the two agree on.
+on the same per-frame detections sorted by confidence. Each synthetic sequence is a detection file
+in the DeepSORT layout (targets moving with noise, 128-D features scattered around a per-target mean,
+10% missed detections) with its ground truth; `--save-dir` keeps them, e.g. to try
+`python -m spacetrack.track_detections` on. Only the tracker is timed: the per-frame inputs are read
+beforehand into each contender's own format. The report also states how many written boxes (id and
+box to 0.01 px) the two agree on, and our MOTA against the ground truth as a sanity check.
 
 BLAS is pinned to one thread for both: the matrices are tiny, and on a busy machine multi-threaded
 OpenBLAS can stall a 4x4 triangular solve for milliseconds, which would time the machine, not the code.
 
-    python benchmarks/bench_tracker.py [--frames 100] [--repeats 5]
+    python benchmarks/bench_tracker.py [--frames 100] [--repeats 5] [--targets 5 20 100] [--save-dir DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from importlib.metadata import version
 from pathlib import Path
 
@@ -29,7 +32,10 @@ import numpy as np
 import scipy.linalg  # noqa: F401  (loaded before pinning, so its BLAS is pinned too)
 from threadpoolctl import threadpool_limits
 
+from spacetrack.evaluation import evaluate, read_mot_file
+from spacetrack.track_detections import rows_as_mot
 from spacetrack.tracking import DeepSort
+from spacetrack.tracking.io import iter_frames, load_detections
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import markdown_table, summarize, time_call, write_report  # noqa: E402
@@ -39,24 +45,40 @@ FEATURE_DIM = 128
 MISS_RATE = 0.1
 
 
-def synthetic_frames(num_targets: int, num_frames: int, seed: int = 0) -> list[tuple[np.ndarray, ...]]:
-    """Per frame (tlwh (N, 4) px, confidence (N,), feature (N, 128)), sorted by confidence, descending."""
+def write_synthetic_files(
+    folder: Path, num_targets: int, num_frames: int, seed: int = 0
+) -> tuple[Path, Path]:
+    """Write `targets_<n>.npy` (DeepSORT layout) and `targets_<n>_gt.txt` (MOT) into `folder`.
+
+    Targets move at constant velocity; detections add 1 px position noise, 3% size noise and a 128-D
+    feature scattered around a per-target mean, miss 10% of the boxes, and come sorted by confidence.
+    """
     rng = np.random.default_rng(seed)
     means = rng.normal(size=(num_targets, FEATURE_DIM))
     start = rng.uniform([0, 0], [600, 440], size=(num_targets, 2))
     velocity = rng.normal(0, 2, size=(num_targets, 2))
     size = rng.uniform([12, 16], [40, 50], size=(num_targets, 2))
-    frames = []
-    for f in range(num_frames):
+    dets, gt = [], []
+    for frame in range(1, num_frames + 1):
+        xy = start + velocity * frame
+        ids = np.arange(1, num_targets + 1)
+        gt.append(np.column_stack([np.full(num_targets, frame), ids, xy, size, np.ones((num_targets, 3))]))
         seen = rng.random(num_targets) > MISS_RATE
         n = int(seen.sum())
-        xy = start[seen] + velocity[seen] * f + rng.normal(0, 1.0, size=(n, 2))
-        wh = size[seen] * rng.normal(1, 0.03, size=(n, 2))
+        boxes = np.hstack([xy[seen] + rng.normal(0, 1.0, (n, 2)), size[seen] * rng.normal(1, 0.03, (n, 2))])
         confidence = rng.uniform(0.4, 1.0, n)
         feature = means[seen] + rng.normal(0, 0.3, size=(n, FEATURE_DIM))
-        order = np.argsort(-confidence, kind="stable")
-        frames.append((np.hstack([xy, wh])[order], confidence[order], feature[order]))
-    return frames
+        rows = np.column_stack([np.full(n, frame), -np.ones(n), boxes, confidence, -np.ones((n, 3)), feature])
+        dets.append(rows[np.argsort(-confidence, kind="stable")])
+    det_path, gt_path = folder / f"targets_{num_targets}.npy", folder / f"targets_{num_targets}_gt.txt"
+    np.save(det_path, np.concatenate(dets))
+    np.savetxt(gt_path, np.concatenate(gt), fmt="%d,%d,%.2f,%.2f,%.2f,%.2f,%d,%d,%d")
+    return det_path, gt_path
+
+
+def frames_from_file(path: Path) -> list[tuple[np.ndarray, ...]]:
+    """Per frame (tlwh (N, 4) px, confidence (N,), feature (N, D)) of a detection file."""
+    return [(rows[:, 2:6], rows[:, 6], rows[:, 10:]) for _, rows in iter_frames(load_detections(path))]
 
 
 def run_ours(frames: list[tuple[np.ndarray, ...]]) -> list[dict[int, np.ndarray]]:
@@ -93,27 +115,39 @@ def agreement(ours: list[dict[int, np.ndarray]], peer: list[dict[int, np.ndarray
     return same / max(total, 1)
 
 
+def score(tracks: list[dict[int, np.ndarray]], gt: np.ndarray) -> float:
+    """MOTA of per-frame tracker outputs against the synthetic ground truth (a sanity check)."""
+    rows = [[frame, k, *box] for frame, out in enumerate(tracks, start=1) for k, box in out.items()]
+    return evaluate({"s": (gt, rows_as_mot(np.array(rows)))})["s"]["mota"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--targets", type=int, nargs="+", default=[5, 20, 100])
+    parser.add_argument("--save-dir", type=Path, help="keep the synthetic detection and gt files here")
     args = parser.parse_args()
 
-    with threadpool_limits(limits=1, user_api="blas"):
-        rows, results = measure(args.targets, args.frames, args.repeats)
+    with tempfile.TemporaryDirectory() as tmp, threadpool_limits(limits=1, user_api="blas"):
+        folder = args.save_dir or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        rows, results = measure(folder, args.targets, args.frames, args.repeats)
     write(rows, results, args.frames, args.repeats)
 
 
-def measure(targets: list[int], num_frames: int, repeats: int) -> tuple[list[list], list[dict]]:
+def measure(folder: Path, targets: list[int], num_frames: int, repeats: int) -> tuple[list[list], list[dict]]:
     per_frame = 1e3 / num_frames  # seconds per sequence -> ms per frame
     rows, results = [], []
     for num_targets in targets:
-        frames = synthetic_frames(num_targets, num_frames)
+        det_path, gt_path = write_synthetic_files(folder, num_targets, num_frames)
+        frames = frames_from_file(det_path)
         inputs = peer_inputs(frames)
         ours = summarize(time_call(lambda f=frames: run_ours(f), repeats=repeats, warmup=1), per_frame)
         peer = summarize(time_call(lambda i=inputs: run_peer(i), repeats=repeats, warmup=1), per_frame)
-        agree = agreement(run_ours(frames), run_peer(inputs))
+        tracks = run_ours(frames)
+        agree = agreement(tracks, run_peer(inputs))
+        mota = score(tracks, read_mot_file(gt_path))
         ratio = peer["median"] / ours["median"]
         results.append(
             {
@@ -123,9 +157,12 @@ def measure(targets: list[int], num_frames: int, repeats: int) -> tuple[list[lis
                 "peer_ms_per_frame": peer,
                 "peer_over_spacetrack": ratio,
                 "agreement": agree,
+                "spacetrack_mota": mota,
             }
         )
-        rows.append([num_targets, ours["median"], ours["p25"], ours["p75"], peer["median"], ratio, agree])
+        rows.append(
+            [num_targets, ours["median"], ours["p25"], ours["p75"], peer["median"], ratio, agree, mota]
+        )
         print(
             f"{num_targets:4d} targets: spacetrack {ours['median']:.2f} ms/frame, peer {peer['median']:.2f}"
         )
@@ -145,7 +182,7 @@ def write(rows: list[list], results: list[dict], num_frames: int, repeats: int) 
         "peer": f"deep-sort-realtime {version('deep-sort-realtime')}",
         "results": results,
     }
-    header = ["targets", "spacetrack ms", "p25", "p75", "peer ms", "peer / spacetrack", "same boxes"]
+    header = ["targets", "spacetrack ms", "p25", "p75", "peer ms", "peer / spacetrack", "same boxes", "MOTA"]
     table = (
         "# Tracker-only time per frame\n\n"
         f"{num_frames} frames per sequence, median of {repeats} runs, BLAS on one thread; peer: "
