@@ -23,9 +23,9 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
         torch.save(state, tmp)
 
 
-def differences(found: dict[str, Any], expected: dict[str, Any]) -> str:
-    """'key: checkpoint X, configured Y' for every key whose values differ."""
-    keys = sorted(set(found) | set(expected))
+def differences(found: dict[str, Any], expected: dict[str, Any], ignore: tuple[str, ...] = ()) -> str:
+    """'key: checkpoint X, configured Y' for every key whose values differ ('' when none do)."""
+    keys = sorted((set(found) | set(expected)) - set(ignore))
     return "; ".join(
         f"{k}: checkpoint {found.get(k)!r}, configured {expected.get(k)!r}"
         for k in keys
@@ -44,7 +44,7 @@ def load_checkpoint(path: str | Path, *, arch: dict[str, Any] | None = None) -> 
         raise ValueError(f"{path} is not a readable checkpoint: {err}") from err
     if not isinstance(state, dict) or "arch" not in state or "ema" not in state:
         raise ValueError(f"{path} is not a spacetrack detector checkpoint (no 'arch' and 'ema' entries)")
-    if arch is not None and state["arch"] != arch:
+    if arch is not None and differences(state["arch"], arch):
         raise ValueError(f"{path} was trained for another architecture: {differences(state['arch'], arch)}")
     return state
 

@@ -22,6 +22,8 @@ from spacetrack.engine.checkpoint import differences, load_checkpoint, save_chec
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
 from spacetrack.engine.validate import evaluate
 
+# Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
+RESULT_NEUTRAL = ("workers",)
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
 
 
@@ -98,10 +100,9 @@ class Trainer:
         start_epoch, best, history = 0, -1.0, []
         if resume_from is not None:
             state = load_checkpoint(resume_from, arch=model.arch)
-            if state["settings"] != settings:
-                raise ValueError(
-                    f"cannot resume {resume_from} with other settings: {differences(state['settings'], settings)}"
-                )
+            changed = differences(state["settings"], settings, ignore=RESULT_NEUTRAL)
+            if changed:
+                raise ValueError(f"cannot resume {resume_from} with other settings: {changed}")
             model.load_state_dict(state["model"])
             ema.module.load_state_dict(state["ema"])
             ema.updates = state["ema_updates"]
