@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from spacetrack.motion import FiveFrameDifference, ViBe
-from spacetrack.motion.compensation import SceneShift, shift_image
+from spacetrack.motion.compensation import SceneShift, shift_image, warp_shift
 
 
 def test_shift_image_moves_content_and_fills_the_rest():
@@ -16,7 +16,15 @@ def test_shift_image_moves_content_and_fills_the_rest():
     assert (shift_image(image, 5, 0, 7) == 7).all()
 
 
-def _star_field(num_frames: int, step: tuple[int, int], shape=(96, 128), seed=0) -> list[np.ndarray]:
+def test_warp_shift_moves_by_fractions_and_fills_from_the_fill_image():
+    image = np.zeros((4, 6), np.uint8)
+    image[:, 2] = 200
+    out = warp_shift(image, 0.5, 0.0, np.full((4, 6), 7, np.uint8))
+    assert out[1, 2] == 100 and out[1, 3] == 100 and out[1, 1] == 0
+    assert (warp_shift(image, 2.0, 0.0, np.full((4, 6), 7, np.uint8))[:, :2] == 7).all()
+
+
+def _star_field(num_frames: int, step: tuple[int, int], shape=(256, 256), seed=0) -> list[np.ndarray]:
     """A field of 3x3 stars drifting by `step` whole pixels per frame (a slewing camera)."""
     rng = np.random.default_rng(seed)
     sky = np.full((shape[0] * 2, shape[1] * 2), 10.0)
@@ -33,13 +41,13 @@ def _star_field(num_frames: int, step: tuple[int, int], shape=(96, 128), seed=0)
 
 
 def test_scene_shift_accumulates_the_slew():
-    shift = SceneShift(crop=64)
+    shift = SceneShift()
     offsets = [shift.update(f) for f in _star_field(6, (2, -1))]
-    assert offsets == [(2 * t, -t) for t in range(6)]
+    np.testing.assert_allclose(offsets, [(2 * t, -t) for t in range(6)], atol=0.15)
     shift.reset()
     assert shift.update(np.zeros((8, 8), np.uint8)) == (0, 0)
-    with pytest.raises(ValueError, match="crop"):
-        SceneShift(crop=-1)
+    with pytest.raises(ValueError, match="tile"):
+        SceneShift(tile=4)
 
 
 @pytest.mark.parametrize("cls", [FiveFrameDifference, ViBe])
@@ -47,8 +55,8 @@ def test_compensation_keeps_a_slewing_star_field_still(run, cls):
     frames = _star_field(12, (2, 1))
     plain = run(cls(), frames)
     compensated = run(cls(compensate=True), frames)
-    assert max(m.sum() for m in plain.values()) > 200
-    assert all(m.sum() == 0 for m in compensated.values())
+    assert max(m.mean() for m in plain.values()) > 0.01
+    assert max(m.mean() for m in compensated.values()) < 0.0005
 
 
 def test_sub_pixel_slew_of_blurred_stars_is_not_motion_once_compensated(run):
@@ -64,5 +72,6 @@ def test_sub_pixel_slew_of_blurred_stars_is_not_motion_once_compensated(run):
         frames.append(np.clip(coarse + 8, 0, 255).astype(np.uint8))
     plain = run(FiveFrameDifference(threshold=10), frames)
     compensated = run(FiveFrameDifference(threshold=10, compensate=True), frames)
-    assert sum(m.sum() for m in plain.values()) > 50
-    assert sum(m.sum() for m in compensated.values()) < 5
+    moving_plain = sum(m.sum() for m in plain.values())
+    assert moving_plain > 1000
+    assert sum(m.sum() for m in compensated.values()) < moving_plain / 20

@@ -2,9 +2,10 @@
 
 Beyond the paper. A camera that slews moves every star and static object in the image; differencing or a
 background model then sees the star field as motion. `SceneShift` measures the translation between
-consecutive frames by phase correlation (OpenCV) and accumulates it; the detectors bring their history into
-the current frame's pixel grid with `shift_image` before comparing. Shifts are rounded to whole pixels so
-that stored frames are moved, never resampled (interpolating a one-pixel star would itself look like change).
+consecutive frames by phase correlation (OpenCV) on a grid of tiles and takes the median, so the few tiles
+that a large moving target fills do not pull the estimate along with the target. The differencing
+detectors warp their history to the current frame with sub-pixel precision (`warp_shift`); ViBe moves its
+model by whole pixels (`shift_image`), its neighbourhood sampling absorbing the remaining fraction.
 """
 
 from __future__ import annotations
@@ -33,21 +34,29 @@ def shift_image(image: np.ndarray, dx: int, dy: int, fill: np.ndarray, *, axis: 
     return out
 
 
+def warp_shift(image: np.ndarray, dx: float, dy: float, fill: np.ndarray) -> np.ndarray:
+    """`image` (H, W) with its content moved by (dx, dy) pixels (bilinear); pixels without source from `fill`."""
+    if dx == 0 and dy == 0:
+        return image
+    matrix = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
+    size = (image.shape[1], image.shape[0])
+    return cv2.warpAffine(image, matrix, size, dst=fill.copy(), borderMode=cv2.BORDER_TRANSPARENT)
+
+
 class SceneShift:
     """Cumulative scene displacement (pixels, x right and y down) of each frame relative to the first.
 
     Args:
-        crop: correlate only the central crop x crop pixels (a power of two keeps the FFT fast; stars
-            fill any part of the sky); 0 uses the whole frame.
-        min_response: phase-correlation peaks weaker than this (a featureless frame) count as no motion.
-
-    Full resolution on purpose: shrinking the frames first costs half-pixel errors that add up.
+        tile: side of the square tiles (pixels; a power of two keeps the FFT fast) laid over the frame;
+            each gives one shift estimate and the median of the confident ones is the frame's shift.
+        min_response: tiles whose phase-correlation peak is weaker than this (no stars in them) abstain;
+            with no confident tile the frame counts as still.
     """
 
-    def __init__(self, *, crop: int = 256, min_response: float = 0.05) -> None:
-        if crop < 0:
-            raise ValueError(f"crop must be >= 0 pixels, got {crop}")
-        self.crop = crop
+    def __init__(self, *, tile: int = 128, min_response: float = 0.05) -> None:
+        if tile < 8:
+            raise ValueError(f"tile must be >= 8 pixels, got {tile}")
+        self.tile = tile
         self.min_response = min_response
         self.reset()
 
@@ -56,17 +65,24 @@ class SceneShift:
         self._window: np.ndarray | None = None
         self._position = np.zeros(2)
 
-    def update(self, grey: np.ndarray) -> tuple[int, int]:
-        """Feed the next (H, W) uint8 frame; return its whole-pixel offset (x, y) from the first frame."""
+    def update(self, grey: np.ndarray) -> tuple[float, float]:
+        """Feed the next (H, W) uint8 frame; return its offset (x, y) in pixels from the first frame."""
         h, w = grey.shape
-        ch, cw = (min(h, self.crop), min(w, self.crop)) if self.crop else (h, w)
-        top, left = (h - ch) // 2, (w - cw) // 2
-        patch = grey[top : top + ch, left : left + cw].astype(np.float32)
+        side = min(self.tile, h, w)
+        current = grey.astype(np.float32)
         if self._previous is not None:
             if self._window is None:
-                self._window = cv2.createHanningWindow((cw, ch), cv2.CV_32F)
-            (dx, dy), response = cv2.phaseCorrelate(self._previous, patch, self._window)
-            if np.isfinite(response) and response >= self.min_response:
-                self._position += (dx, dy)
-        self._previous = patch
-        return int(round(self._position[0])), int(round(self._position[1]))
+                self._window = cv2.createHanningWindow((side, side), cv2.CV_32F)
+            shifts = []
+            for top in range(0, h - side + 1, side):
+                for left in range(0, w - side + 1, side):
+                    window = (slice(top, top + side), slice(left, left + side))
+                    (dx, dy), response = cv2.phaseCorrelate(
+                        self._previous[window], current[window], self._window
+                    )
+                    if np.isfinite(response) and response >= self.min_response:
+                        shifts.append((dx, dy))
+            if shifts:
+                self._position += np.median(np.array(shifts), axis=0)
+        self._previous = current
+        return float(self._position[0]), float(self._position[1])

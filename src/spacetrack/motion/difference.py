@@ -15,10 +15,8 @@ from collections import deque
 import cv2
 import numpy as np
 
-from spacetrack.motion.compensation import SceneShift, shift_image
+from spacetrack.motion.compensation import SceneShift, warp_shift
 from spacetrack.motion.frames import FrameGuard, match_exposure, to_grey
-
-_NEIGHBOURHOOD = np.ones((3, 3), np.uint8)
 
 
 def binarise(diff: np.ndarray, *, alpha: float, threshold: float) -> np.ndarray:
@@ -39,8 +37,7 @@ class FrameDifference(ABC):
     Args:
         alpha: weight of the mean absolute difference in the adaptive threshold (eq. 17), unitless.
         threshold: fixed part T of the threshold, grey levels (0-255).
-        compensate: register frames against global camera motion before differencing (and compare each
-            pixel with the 3x3 neighbourhood of the other frame, to absorb sub-pixel residuals).
+        compensate: register frames against global camera motion before differencing.
         match_exposure: scale every frame of the window to the mean grey level of the frame the mask
             refers to, so an exposure step (all pixels times a gain) is not motion.
     """
@@ -66,7 +63,7 @@ class FrameDifference(ABC):
         self.match_exposure = match_exposure
         self._guard = FrameGuard()
         self._shift = SceneShift()
-        self._history: deque[tuple[np.ndarray, tuple[int, int]]] = deque(maxlen=self.span)
+        self._history: deque[tuple[np.ndarray, tuple[float, float]]] = deque(maxlen=self.span)
 
     def reset(self) -> None:
         self._guard.reset()
@@ -80,13 +77,13 @@ class FrameDifference(ABC):
 
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         grey = to_grey(self._guard.check(frame))
-        offset = self._shift.update(grey) if self.compensate else (0, 0)
+        offset = self._shift.update(grey) if self.compensate else (0.0, 0.0)
         self._history.append((grey, offset))
         if len(self._history) < self.span:
             return None
         centre, (cx, cy) = self._history[self.span - 1 - self.latency]
         # Pixels that entered the view have no past: they take the centre frame's value, i.e. no change.
-        aligned = [shift_image(g, cx - ox, cy - oy, centre) for g, (ox, oy) in self._history]
+        aligned = [warp_shift(g, cx - ox, cy - oy, centre) for g, (ox, oy) in self._history]
         if self.match_exposure:
             level = cv2.mean(centre)[0]
             aligned = [match_exposure(g, level) for g in aligned]
@@ -94,16 +91,7 @@ class FrameDifference(ABC):
 
     def _moving(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Moving pixels of frame `a` against frame `b` (uint8 0/255)."""
-        if self.compensate:
-            # Registration moves frames by whole pixels while the camera slews by fractions of one: a pixel
-            # changes only if it lies outside the range of b's 3x3 neighbourhood, so a star's edge
-            # shifted by under a pixel is not motion.
-            diff = cv2.max(
-                cv2.subtract(a, cv2.dilate(b, _NEIGHBOURHOOD)), cv2.subtract(cv2.erode(b, _NEIGHBOURHOOD), a)
-            )
-        else:
-            diff = cv2.absdiff(a, b)
-        return binarise(diff, alpha=self.alpha, threshold=self.threshold)
+        return binarise(cv2.absdiff(a, b), alpha=self.alpha, threshold=self.threshold)
 
     @abstractmethod
     def _combine(self, frames: list[np.ndarray]) -> np.ndarray:

@@ -38,10 +38,11 @@ def match_exposure(grey: np.ndarray, mean: float) -> np.ndarray:
     """`grey` (uint8) scaled so its mean grey level becomes `mean` (saturating at 255).
 
     Undoes a change of exposure or gain, which multiplies every pixel: the adaptive threshold of eq. 17
-    absorbs an added light level, not a doubled one. A black frame is returned as it is.
+    absorbs an added light level, not a doubled one. A black frame, or one within 1 % of `mean` (a change
+    of at most 2.5 grey levels), is returned as it is.
     """
     current = cv2.mean(grey)[0]
-    if current <= 0 or mean <= 0:
+    if current <= 0 or mean <= 0 or abs(mean / current - 1) < 0.01:
         return grey
     return cv2.convertScaleAbs(grey, alpha=mean / current)
 

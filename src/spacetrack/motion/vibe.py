@@ -108,10 +108,12 @@ class ViBe:
         if self._model is None:
             self._initialise(image)
             self._foreground_run = np.zeros(grey.shape, np.uint8)
-            self._offset = self._shift.update(grey) if self.compensate else (0, 0)
+            self._offset = (0, 0)
+            if self.compensate:
+                self._shift.update(grey)
             return np.zeros(grey.shape, np.uint8)
         if self.compensate:
-            offset = self._shift.update(grey)
+            offset = tuple(round(v) for v in self._shift.update(grey))
             dx, dy = offset[0] - self._offset[0], offset[1] - self._offset[1]
             self._model = shift_image(self._model, dx, dy, image, axis=1)
             self._foreground_run = shift_image(self._foreground_run, dx, dy, 0)
