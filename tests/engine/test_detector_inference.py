@@ -1,0 +1,30 @@
+import numpy as np
+import pytest
+import torch
+
+from spacetrack.engine.inference import detect
+
+
+class FixedBox(torch.nn.Module):
+    """Predicts one box, given in letterbox pixels as (cx, cy, w, h), with objectness 0.9."""
+
+    def __init__(self, cxcywh):
+        super().__init__()
+        self.row = torch.tensor([[*cxcywh, 0.9, 1.0]])
+
+    def predict(self, x):
+        return self.row.expand(len(x), 1, 6)
+
+
+def test_boxes_come_back_in_frame_pixels():
+    frame = np.zeros((480, 640, 3), dtype=np.uint8)
+    # 640x480 -> 320x240 at scale 0.5, padded by 40 rows on top: letterbox box (100, 90)-(120, 110).
+    (det,) = detect(FixedBox((110, 100, 20, 20)), [frame], image_size=320)
+    assert det[:, :4].tolist() == [[200.0, 100.0, 240.0, 140.0]]
+    assert det[0, 4] == pytest.approx(0.9)
+
+
+def test_boxes_are_clipped_to_the_frame():
+    frame = np.zeros((480, 640, 3), dtype=np.uint8)
+    (det,) = detect(FixedBox((5, 45, 20, 20)), [frame, frame], image_size=320)[:1]
+    assert det[0, :4].tolist() == [0.0, 0.0, 30.0, 30.0]
