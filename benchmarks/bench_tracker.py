@@ -9,8 +9,8 @@ Both run the Table 2 "original" association settings (cosine 0.2, IoU 0.7, n_ini
 max_age 70) with NMS off (the peer skips it at overlap 1) and no confidence floor (the peer has none),
 on the same per-frame detections sorted by confidence. Each synthetic sequence is a detection file
 in the DeepSORT layout (targets moving with noise, 128-D features scattered around a per-target mean,
-10% missed detections) with its ground truth; `--save-dir` keeps them, e.g. to try
-`python -m spacetrack.track_detections` on. Only the tracker is timed: the per-frame inputs are read
+10% missed detections) with its ground truth; `--save-dir DIR` only writes them to DIR, e.g. to
+try `python -m spacetrack.track_detections` on. Only the tracker is timed: the per-frame inputs are read
 beforehand into each contender's own format. The report also states how many written boxes (id and
 box to 0.01 px) the two agree on, and our MOTA against the ground truth as a sanity check.
 
@@ -126,13 +126,19 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--targets", type=int, nargs="+", default=[5, 20, 100])
-    parser.add_argument("--save-dir", type=Path, help="keep the synthetic detection and gt files here")
+    parser.add_argument(
+        "--save-dir", type=Path, help="only write the synthetic detection and gt files there (no timing)"
+    )
     args = parser.parse_args()
 
-    with tempfile.TemporaryDirectory() as tmp, threadpool_limits(limits=1, user_api="blas"):
-        folder = args.save_dir or Path(tmp)
-        folder.mkdir(parents=True, exist_ok=True)
-        rows, results = measure(folder, args.targets, args.frames, args.repeats)
+    if args.save_dir:
+        args.save_dir.mkdir(parents=True, exist_ok=True)
+        for num_targets in args.targets:
+            paths = write_synthetic_files(args.save_dir, num_targets, args.frames)
+            print("wrote", *paths)
+        return
+    with tempfile.TemporaryDirectory() as folder, threadpool_limits(limits=1, user_api="blas"):
+        rows, results = measure(Path(folder), args.targets, args.frames, args.repeats)
     write(rows, results, args.frames, args.repeats)
 
 
