@@ -1,0 +1,117 @@
+"""From a `conf/track.yaml` config to the pipeline's parts: weights, cache key, detection stream.
+
+Weights are resolved (and hashed) before any network is loaded, so a run whose sequences are all cached
+never loads one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from spacetrack.config import resolved_dict
+from spacetrack.pipeline.cache import CacheKey, config_hash
+from spacetrack.pipeline.detector import file_hash, resolve_device
+from spacetrack.pipeline.sources import FrameSource
+from spacetrack.pipeline.stages import DetectionStream
+from spacetrack.pipeline.timing import StageTimer
+from spacetrack.pipeline.weights import fold_artifact
+
+NO_REID = "none"
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Resolved weights files: the detector's (None for a detector without weights) and the re-ID
+    network's (None: no appearance features)."""
+
+    detector: Path | None
+    reid: Path | None
+
+
+def _needs_detector_weights(cfg: DictConfig) -> bool:
+    return "weights" in cfg.detector
+
+
+def resolve_weights(cfg: DictConfig) -> Weights:
+    """Paths from the config, or the fold's newest training runs in MLflow when a path is null."""
+    dataset = Path(cfg.dataset).name
+    detector = None
+    if _needs_detector_weights(cfg):
+        detector = cfg.detector.weights
+        if detector is None:
+            _require_fold(cfg, "detector.weights")
+            tags = {"model": str(cfg.detector_run.model), "enhance": str(instantiate(cfg.enhance).name)}
+            detector = fold_artifact(
+                experiment=cfg.detector_run.experiment,
+                fold=cfg.fold,
+                dataset=dataset,
+                artifact="weights/best.pt",
+                make_command=f"make train FOLD={cfg.fold}",
+                tags=tags,
+                tracking_uri=cfg.logger.tracking_uri,
+            )
+    reid = cfg.reid.weights
+    if reid is None:
+        _require_fold(cfg, "reid.weights")
+        reid = fold_artifact(
+            experiment=cfg.reid.experiment,
+            fold=cfg.fold,
+            dataset=dataset,
+            artifact="weights/reid.pt",
+            make_command=f"make train-reid FOLD={cfg.fold}",
+            tracking_uri=cfg.logger.tracking_uri,
+        )
+    for what, path in (("detector", detector), ("re-ID", None if reid == NO_REID else reid)):
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(f"{what} weights {path} not found")
+    return Weights(Path(detector) if detector is not None else None, None if reid == NO_REID else Path(reid))
+
+
+def _require_fold(cfg: DictConfig, key: str) -> None:
+    if cfg.fold is None:
+        raise ValueError(
+            f"{key} is null, which means the fold's trained weights from MLflow, but no fold is given: "
+            f"set fold=k or {key}=PATH"
+        )
+
+
+def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKey:
+    """What made (or would make) a source's detections: networks by file hash, settings by config hash."""
+    detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in ("weights", "device")}
+    detector_id = config_hash(detector)
+    if weights.detector is not None:
+        detector_id += " " + file_hash(weights.detector)
+    motion = {"motion": resolved_dict(cfg.motion), "dynamic": resolved_dict(cfg.dynamic)}
+    return CacheKey(
+        detector=detector_id,
+        reid=file_hash(weights.reid) if weights.reid is not None else NO_REID,
+        enhance=config_hash(resolved_dict(cfg.enhance)),
+        motion=config_hash(motion),
+        source=f"{source.description} ({source.num_frames} frames)",
+    )
+
+
+def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = None) -> DetectionStream:
+    """The per-frame stages: loads the networks."""
+    from spacetrack.reid import Encoder
+
+    extra = {"weights": str(weights.detector)} if weights.detector is not None else {}
+    if cfg.detector.get("root", "") is None:  # the ground-truth detector reads the tracked dataset
+        extra["root"] = str(Path(str(cfg.source)).parent) if cfg.source is not None else cfg.dataset
+    encoder = None
+    if weights.reid is not None:
+        encoder = Encoder.from_weights(
+            weights.reid, device=resolve_device(cfg.reid.device), batch_size=cfg.reid.batch_size
+        )
+    return DetectionStream(
+        enhancer=instantiate(cfg.enhance),
+        detector=instantiate(cfg.detector, **extra),
+        encoder=encoder,
+        motion=instantiate(cfg.motion),
+        dynamic_filter=instantiate(cfg.dynamic),
+        timer=timer,
+    )

@@ -1,0 +1,129 @@
+"""One source through the whole pipeline: cached or fresh detections -> tracker -> MOT file, MP4, timings.
+
+Nothing is half-written: the MOT file and the MP4 replace their paths only when the sequence completes,
+and the cache is valid only once its sidecar is written after its arrays.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from spacetrack.pipeline.cache import CacheKey, DetectionCache
+from spacetrack.pipeline.outputs import Annotator
+from spacetrack.pipeline.sources import FrameSource
+from spacetrack.pipeline.stages import FrameDetections
+from spacetrack.pipeline.timing import StageTimer
+from spacetrack.tracking import DeepSort
+from spacetrack.tracking.io import write_mot_results
+from spacetrack.viz.video import VideoWriter
+
+
+@dataclass
+class SequenceResult:
+    """rows: (N, 6) `frame, id, x, y, w, h` tracker output (tlwh pixels); timings: ms per frame by stage."""
+
+    name: str
+    rows: np.ndarray
+    num_frames: int
+    from_cache: bool
+    wall_seconds: float
+    timings: dict[str, float] = field(default_factory=dict)
+    mot_path: Path | None = None
+    video_path: Path | None = None
+
+
+def cached_frames(
+    rows: np.ndarray, flags: np.ndarray, num_frames: int, images: Iterable[np.ndarray] | None
+) -> Iterator[FrameDetections]:
+    """The per-frame view of cached detections, frames 1..num_frames, with images when given."""
+    frames = rows[:, 0].astype(int)
+    bounds = np.searchsorted(frames, np.arange(1, num_frames + 2))
+    image_iter = iter(images) if images is not None else None
+    for f in range(1, num_frames + 1):
+        part = slice(bounds[f - 1], bounds[f])
+        image = next(image_iter) if image_iter is not None else None
+        yield FrameDetections(f, rows[part], flags[part, 0].astype(bool), flags[part, 1], image)
+
+
+def _recording(stream: Iterator[FrameDetections], sink: list[FrameDetections]) -> Iterator[FrameDetections]:
+    for item in stream:
+        sink.append(item)
+        yield item
+
+
+def run_source(
+    source: FrameSource,
+    *,
+    tracker: DeepSort,
+    make_stream: Callable[[], object],
+    cache: DetectionCache | None,
+    key: CacheKey,
+    use_filter: bool,
+    out_dir: Path,
+    video: bool,
+    progress: bool = True,
+) -> SequenceResult:
+    """Track `source`; write `<out_dir>/<name>.txt` (MOT) and, with `video`, `<name>.mp4`.
+
+    make_stream: builds the `DetectionStream` (loads the networks) only if the cache cannot serve.
+    use_filter: only detections that the motion stage marks dynamic reach the tracker.
+    """
+    started = time.perf_counter()
+    cached = cache.load(source.name, key) if cache is not None else None
+    recorded: list[FrameDetections] = []
+    timer = StageTimer()
+    if cached is not None:
+        rows, flags, num_frames = cached
+        stream: Iterator[FrameDetections] = cached_frames(rows, flags, num_frames, source if video else None)
+    else:
+        detection_stream = make_stream()
+        timer = detection_stream.timer
+        stream = _recording(detection_stream.run(source, keep_images=video), recorded)
+    # A live source has no length: the bar then shows the frame count and the live frame rate.
+    bar = tqdm(
+        stream, total=source.num_frames, desc=source.name, unit="frame", disable=not progress, leave=False
+    )
+    annotator, results = Annotator(), []
+    mot_path, video_path = out_dir / f"{source.name}.txt", out_dir / f"{source.name}.mp4"
+    with ExitStack() as stack:
+        writer = None
+        for item in bar:
+            keep = item.dynamic if use_filter else np.ones(len(item.rows), bool)
+            dets = item.rows[keep]
+            with timer("tracker"):
+                out = tracker.step(dets[:, 2:6], dets[:, 6], dets[:, 10:])
+            results.append(np.column_stack([np.full(len(out), item.frame), out]))
+            if video and item.image is not None:
+                if writer is None:
+                    height, width = item.image.shape[:2]
+                    writer = stack.enter_context(VideoWriter(video_path, source.fps, (width, height)))
+                static = item.rows[(~item.dynamic) & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
+                info = f"{source.name} frame {item.frame}  tracks {len(out)}"
+                with timer("draw"):
+                    writer.write(annotator(item.image, out, static, info))
+        num_frames = len(results)
+        if num_frames == 0:
+            raise ValueError(f"{source.description}: no frames")
+        rows_out = np.concatenate(results)
+        write_mot_results(mot_path, rows_out)
+    if cached is None and cache is not None:
+        det_rows = np.concatenate([r.rows for r in recorded])
+        flags = np.concatenate([np.column_stack([r.dynamic, r.classes]) for r in recorded]).astype(np.int64)
+        cache.save(source.name, key, det_rows, flags.reshape(-1, 2), num_frames=num_frames)
+    return SequenceResult(
+        name=source.name,
+        rows=rows_out,
+        num_frames=num_frames,
+        from_cache=cached is not None,
+        wall_seconds=time.perf_counter() - started,
+        timings=timer.ms_per_frame(num_frames),
+        mot_path=mot_path,
+        video_path=video_path if video and video_path.is_file() else None,
+    )

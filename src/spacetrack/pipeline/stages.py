@@ -1,0 +1,115 @@
+"""The streaming front of the pipeline: enhancement -> detector -> re-ID -> motion fusion -> dynamic filter.
+
+Frames are processed as they come. The detector and the re-ID encoder answer for frame t at once; the
+motion fusion answers for frame t only `motion.latency` frames later (2 for the paper's five-frame
+difference), so each frame's detections wait in a short queue until its moving blobs are known. Frames
+before the first motion mask take the blobs of that mask; the last frames, which never get one, take
+the blobs of the last mask.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from spacetrack.motion import DynamicFilter, MotionDetector
+from spacetrack.motion.blobs import Blob
+from spacetrack.pipeline.sources import FrameSource
+from spacetrack.pipeline.timing import StageTimer
+
+HEAD_COLUMNS = 10  # frame,-1,x,y,w,h,confidence,-1,-1,-1 before the appearance feature
+
+
+@dataclass
+class FrameDetections:
+    """One frame's detections: `rows` in the DESIGN.md layout (N, 10 + D), `dynamic` (N,) bool, `classes`
+    (N,) class indices, and the RGB `image` when the stream keeps images (for drawing)."""
+
+    frame: int
+    rows: np.ndarray
+    dynamic: np.ndarray
+    classes: np.ndarray
+    image: np.ndarray | None
+
+
+def detection_rows(frame: int, boxes: np.ndarray, features: np.ndarray) -> np.ndarray:
+    """(N, 10 + D) rows `frame,-1,x,y,w,h,score,-1,-1,-1,feature` from (N, >=5) `x,y,w,h,score` boxes."""
+    n = len(boxes)
+    head = np.full((n, HEAD_COLUMNS), -1.0)
+    head[:, 0] = frame
+    head[:, 2:7] = boxes[:, :5]
+    return np.hstack([head, np.asarray(features, dtype=np.float64).reshape(n, -1)])
+
+
+class DetectionStream:
+    """Runs the per-frame stages over a source and yields `FrameDetections` in frame order.
+
+    enhancer: RGB -> RGB for the detector's input (`conf/enhance/`); motion and re-ID see the raw frame,
+        as they were tuned and trained on it.
+    detector: `(rgb, frame) -> (N, 6)` rows `x,y,w,h,score,class` (see `pipeline.detector`).
+    encoder: `(rgb, boxes_tlwh) -> (N, D)` re-ID features, or None for no appearance (D = 0).
+    motion: a streaming motion detector with `blobs` (the paper's `Fusion`), or None to call every
+        detection dynamic.
+    dynamic_filter: marks boxes dynamic from the blobs (`motion.DynamicFilter`).
+    """
+
+    def __init__(
+        self,
+        *,
+        enhancer: Callable[[np.ndarray], np.ndarray],
+        detector: Callable[[np.ndarray, int], np.ndarray],
+        encoder: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+        motion: MotionDetector | None,
+        dynamic_filter: DynamicFilter,
+        timer: StageTimer | None = None,
+    ) -> None:
+        self.enhancer, self.detector, self.encoder = enhancer, detector, encoder
+        self.motion, self.dynamic_filter = motion, dynamic_filter
+        self.timer = timer or StageTimer()
+
+    @property
+    def latency(self) -> int:
+        """Frames a frame's detections wait for its motion mask."""
+        return self.motion.latency if self.motion is not None else 0
+
+    def run(self, source: FrameSource, *, keep_images: bool = False) -> Iterator[FrameDetections]:
+        timer = self.timer
+        self.detector.begin(source)
+        if self.motion is not None:
+            self.motion.reset()
+        pending: deque[tuple[int, np.ndarray | None, np.ndarray, np.ndarray]] = deque()
+        blobs: list[Blob] | None = None
+        for frame, rgb in enumerate(source, start=1):
+            with timer("enhance"):
+                enhanced = self.enhancer(rgb)
+            with timer("detector"):
+                boxes = self.detector(enhanced, frame)
+            with timer("reid"):
+                features = (
+                    self.encoder(rgb, boxes[:, :4]) if self.encoder is not None else np.zeros((len(boxes), 0))
+                )
+            pending.append(
+                (frame, rgb if keep_images else None, detection_rows(frame, boxes, features), boxes[:, 5])
+            )
+            if self.motion is None:
+                yield self._resolve(pending.popleft(), None)
+                continue
+            with timer("motion"):
+                mask = self.motion.apply(rgb)
+            if mask is None:
+                continue
+            blobs = list(self.motion.blobs)
+            ready = self.motion.mask_index + 1  # 1-based frame the mask belongs to
+            while pending and pending[0][0] <= ready:
+                yield self._resolve(pending.popleft(), blobs)
+        while pending:
+            yield self._resolve(pending.popleft(), blobs or [])
+
+    def _resolve(self, item: tuple, blobs: list[Blob] | None) -> FrameDetections:
+        frame, image, rows, classes = item
+        with self.timer("dynamic"):
+            dynamic = np.ones(len(rows), bool) if blobs is None else self.dynamic_filter(rows[:, 2:6], blobs)
+        return FrameDetections(frame, rows, dynamic, classes.astype(int), image)

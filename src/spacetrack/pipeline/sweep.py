@@ -1,0 +1,177 @@
+"""A Hydra callback that makes a multirun of `spacetrack.track` one MLflow sweep with a MOTA heatmap.
+
+On multirun start it opens a parent run and exports its id as `SPACETRACK_SWEEP_PARENT_RUN_ID` (the track
+config reads it into `sweep_parent_run_id`, so each point's run becomes a child). After each job it
+records the point's overrides and `metrics.json`; at the end it writes `sweep.json`, `sweep.md` and,
+when two keys were swept, `heatmap.png` (the metric over the grid; over folds, a bar chart with the mean)
+into the sweep folder, logs them on the parent with the best point and the mean and std of the metric.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from hydra.core.utils import JobReturn, JobStatus  # noqa: E402
+from hydra.experimental.callback import Callback  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+
+from spacetrack.io import atomic_write_text  # noqa: E402
+from spacetrack.mlflow_log import start_run  # noqa: E402
+
+PARENT_ENV = "SPACETRACK_SWEEP_PARENT_RUN_ID"
+
+
+def swept_keys(points: list[dict[str, str]]) -> list[str]:
+    """Override keys whose value differs between points, in the order the first point gives them."""
+    return [k for k in points[0] if len({p.get(k) for p in points}) > 1] if points else []
+
+
+def _number(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _sorted(values: set) -> list:
+    try:
+        return sorted(values)
+    except TypeError:  # numbers mixed with words
+        return sorted(values, key=str)
+
+
+def plot_sweep(points: list[dict], keys: list[str], metric: str, path: Path) -> bool:
+    """Heatmap of `metric` over two swept keys, or bars over one; False (nothing drawn) otherwise."""
+    if len(keys) not in (1, 2):
+        return False
+    fig, ax = plt.subplots(figsize=(5.5, 4.2))
+    if len(keys) == 1:
+        labels = [str(p["overrides"][keys[0]]) for p in points]
+        values = [p["metrics"].get(metric, np.nan) for p in points]
+        ax.bar(labels, values, color="tab:blue")
+        mean = float(np.nanmean(values))
+        ax.axhline(mean, color="k", ls="--", label=f"mean {mean:.3f} ± {float(np.nanstd(values)):.3f}")
+        ax.set_xlabel(keys[0])
+        ax.set_ylabel(metric)
+        ax.legend()
+    else:
+        xs = _sorted({_number(p["overrides"][keys[0]]) for p in points})
+        ys = _sorted({_number(p["overrides"][keys[1]]) for p in points})
+        grid = np.full((len(ys), len(xs)), np.nan)
+        for p in points:
+            i = ys.index(_number(p["overrides"][keys[1]]))
+            j = xs.index(_number(p["overrides"][keys[0]]))
+            grid[i, j] = p["metrics"].get(metric, np.nan)
+        image = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
+        for (i, j), v in np.ndenumerate(grid):
+            ax.text(j, i, f"{v:.3f}", ha="center", va="center", color="w", fontsize=9)
+        ax.set_xticks(range(len(xs)), [str(x) for x in xs])
+        ax.set_yticks(range(len(ys)), [str(y) for y in ys])
+        ax.set_xlabel(keys[0])
+        ax.set_ylabel(keys[1])
+        fig.colorbar(image, ax=ax, label=metric)
+    ax.set_title(f"{metric} per sweep point")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def sweep_table(points: list[dict], keys: list[str], metrics: list[str]) -> str:
+    head = "| " + " | ".join(keys + metrics) + " |\n|" + "---|" * (len(keys) + len(metrics)) + "\n"
+    body = "".join(
+        "| "
+        + " | ".join(
+            [str(p["overrides"][k]) for k in keys]
+            + [f"{p['metrics'].get(m, float('nan')):.4f}" for m in metrics]
+        )
+        + " |\n"
+        for p in points
+    )
+    return head + body
+
+
+class SweepCallback(Callback):
+    """metric: the score the heatmap shows and the best point maximises (a key of metrics.json)."""
+
+    def __init__(self, *, metric: str = "mota") -> None:
+        self.metric = metric
+        self.points: list[dict[str, Any]] = []
+        self._stack = ExitStack()
+        self._parent_id: str | None = None
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self.points = []
+        if not config.logger.enabled:
+            return
+        summary = OmegaConf.create(
+            {
+                "task_name": config.task_name,
+                "logger": OmegaConf.to_container(config.logger, resolve=True),
+                "sweep": list(config.hydra.overrides.task),
+            }
+        )
+        run = self._stack.enter_context(start_run(summary, run_name="sweep", tags={"sweep": "parent"}))
+        self._parent_id = run.info.run_id
+        os.environ[PARENT_ENV] = self._parent_id
+
+    def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
+        if job_return.status != JobStatus.COMPLETED:
+            return
+        out_dir = Path(job_return.hydra_cfg.hydra.runtime.output_dir)
+        metrics_path = out_dir / "metrics.json"
+        metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
+        overrides = dict(
+            o.split("=", 1) for o in job_return.overrides if "=" in o and not o.startswith("+sweep")
+        )
+        self.points.append({"overrides": overrides, "metrics": metrics, "output_dir": str(out_dir)})
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        try:
+            if self.points:
+                self._report(Path(config.hydra.sweep.dir))
+        finally:
+            os.environ.pop(PARENT_ENV, None)
+            self._stack.close()
+            self._parent_id = None
+
+    def _report(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        keys = swept_keys([p["overrides"] for p in self.points])
+        values = [p["metrics"].get(self.metric, np.nan) for p in self.points]
+        best = self.points[int(np.nanargmax(values))] if not np.all(np.isnan(values)) else None
+        record = {
+            "metric": self.metric,
+            "swept": keys,
+            "best": best,
+            "points": self.points,
+            f"{self.metric}_mean": float(np.nanmean(values)),
+            f"{self.metric}_std": float(np.nanstd(values)),
+        }
+        atomic_write_text(folder / "sweep.json", json.dumps(record, indent=2) + "\n")
+        shown = [self.metric] + [m for m in ("idf1", "idsw", "fp", "fn") if m != self.metric]
+        atomic_write_text(folder / "sweep.md", sweep_table(self.points, keys, shown))
+        artifacts = [folder / "sweep.json", folder / "sweep.md"]
+        if plot_sweep(self.points, keys, self.metric, folder / "heatmap.png"):
+            artifacts.append(folder / "heatmap.png")
+        if self._parent_id is not None:
+            import mlflow
+
+            client = mlflow.MlflowClient()
+            for key in (f"{self.metric}_mean", f"{self.metric}_std"):
+                if np.isfinite(record[key]):
+                    client.log_metric(self._parent_id, key, record[key])
+            if best is not None:
+                for k, v in best["overrides"].items():
+                    client.log_param(self._parent_id, f"best.{k}", v)
+            for path in artifacts:
+                client.log_artifact(self._parent_id, str(path), "sweep")

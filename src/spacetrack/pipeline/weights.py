@@ -1,0 +1,59 @@
+"""Finding a fold's trained detector and re-ID weights through MLflow (experiments `detector` and `reid`).
+
+The training entry points log one run per fold (tag `fold`, parameter `data.name`) with the weights as
+an artifact; the newest finished run that matches wins. A fold with no such run is an error naming the
+command that makes one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mlflow
+
+from spacetrack.mlflow_log import tracking_uri as resolve_uri
+
+
+class MissingWeightsError(FileNotFoundError):
+    """No trained weights for what was asked; the message names the command that trains them."""
+
+
+def fold_artifact(
+    *,
+    experiment: str,
+    fold: int,
+    dataset: str,
+    artifact: str,
+    make_command: str,
+    tags: dict[str, str] | None = None,
+    tracking_uri: str | None = None,
+) -> Path:
+    """Local path of `artifact` of the newest FINISHED run of `experiment` for `fold` on `dataset`.
+
+    tags: further tags the run must carry (e.g. {"model": "after_sppf", "enhance": "dwt_hsv"}).
+    """
+    uri = resolve_uri(tracking_uri)
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    wanted = {"fold": str(fold), **(tags or {})}
+    where = " and ".join(f"tags.`{k}` = '{v}'" for k, v in wanted.items())
+    where += f" and params.`data.name` = '{dataset}' and attributes.status = 'FINISHED'"
+    found = client.get_experiment_by_name(experiment)
+    runs = (
+        client.search_runs(
+            [found.experiment_id], where, order_by=["attributes.start_time DESC"], max_results=20
+        )
+        if found is not None
+        else []
+    )
+    for run in runs:
+        names = {a.path for a in client.list_artifacts(run.info.run_id, str(Path(artifact).parent))}
+        if artifact in names:
+            local = mlflow.artifacts.download_artifacts(
+                run_id=run.info.run_id, artifact_path=artifact, tracking_uri=uri
+            )
+            return Path(local)
+    described = ", ".join(f"{k}={v}" for k, v in wanted.items())
+    raise MissingWeightsError(
+        f"no trained weights for fold {fold} of {dataset} ({described}) in MLflow experiment "
+        f"{experiment!r} on {uri}: make them with `{make_command}`, or give the path in the config"
+    )

@@ -1,0 +1,159 @@
+"""Track moving space targets in video: the whole pipeline from frames to MOT results, MP4s and metrics.
+
+python -m spacetrack.track fold=3                       (a fold's sequences with that fold's weights)
+python -m spacetrack.track source=clip.mp4 detector.weights=best.pt reid.weights=reid.pt
+python -m spacetrack.track -m tracker.max_cosine_distance=0.05,0.1,0.2 fold=3     (a sweep, from the cache)
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from spacetrack.config import CONF_DIR
+from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.io import atomic_write_text
+from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
+from spacetrack.pipeline.build import build_stream, cache_key, resolve_weights
+from spacetrack.pipeline.cache import DetectionCache
+from spacetrack.pipeline.runner import SequenceResult, run_source
+from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
+from spacetrack.pipeline.timing import StageTimer
+from spacetrack.track_detections import rows_as_mot
+
+log = logging.getLogger(__name__)
+SCORES = ("mota", "motp", "idf1", "idsw", "fp", "fn", "mt", "ml", "precision", "recall")
+
+
+def select_sources(cfg: DictConfig) -> list[tuple[FrameSource, Path | None]]:
+    """(source, its gt.txt or None) for `source=`, `sequence=` or `fold=`, in that order of precedence."""
+    if cfg.source is not None:
+        source = open_source(cfg.source, fps=cfg.fps)
+        gt = Path(str(cfg.source)) / "gt" / "gt.txt"
+        return [(source, gt if gt.is_file() else None)]
+    if cfg.sequence is None and cfg.fold is None:
+        raise ValueError("nothing to track: give fold=K, sequence=NAME or source=PATH|CAMERA_INDEX|realsense")
+    root = Path(cfg.dataset)
+    manifest = load_manifest(root)
+    if cfg.sequence is not None:
+        names = [str(cfg.sequence)]
+        known = {s["name"] for s in manifest["sequences"]}
+        if names[0] not in known:
+            raise ValueError(f"sequence {names[0]!r} is not in {root} (it has {sorted(known)})")
+    else:
+        names = split_sequences(manifest, cfg.fold)[1]
+    fps = {s["name"]: s["fps"] for s in manifest["sequences"]}
+    return [(sequence_source(root, n, fps=cfg.fps or fps[n]), root / n / "gt" / "gt.txt") for n in names]
+
+
+def cache_folder(cfg: DictConfig) -> Path:
+    """One cache folder per detector kind and enhancement, so rows of Table 4 never evict each other."""
+    kind = str(cfg.detector._target_).rsplit(".", 1)[-1]
+    if "weights" in cfg.detector:
+        kind += f"-{cfg.detector_run.model}"
+    return Path(cfg.cache.dir) / f"{kind}-{cfg.enhance._target_.rsplit('.', 1)[-1]}"
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    """Track every selected source; return the overall scores (when there is ground truth) and timings.
+
+    Writes `<output_dir>/<name>.txt` (MOT rows `frame,id,x,y,w,h,1,-1,-1,-1`), `<name>.mp4` (with
+    `video`) and `metrics.json`; logs one MLflow run with per-sequence metrics (`<name>/mota`, ...), the
+    overall ones and the clips.
+    """
+    sources = select_sources(cfg)
+    weights = resolve_weights(cfg)
+    if weights.reid is None and cfg.tracker.max_cosine_distance is not None:
+        raise ValueError(
+            "reid.weights=none gives no appearance features, but the tracker matches by appearance; "
+            "use tracker=sort (or tracker.max_cosine_distance=null)"
+        )
+    out_dir = Path(cfg.output_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cache = DetectionCache(cache_folder(cfg), rebuild=cfg.cache.rebuild) if cfg.cache.enabled else None
+    built: list = []
+
+    def make_stream():
+        if not built:  # the networks load once, and only if some source is not cached
+            built.append(build_stream(cfg, weights, StageTimer()))
+        built[0].timer = StageTimer()
+        return built[0]
+
+    run_name = f"fold{cfg.fold}" if cfg.fold is not None and cfg.sequence is None else None
+    results: list[SequenceResult] = []
+    pairs = {}
+    metrics: dict[str, float] = {}
+    with start_run(cfg, run_name=run_name or sources[0][0].name, parent_run_id=cfg.sweep_parent_run_id):
+        for source, gt_path in sources:
+            source = limit(source, cfg.max_frames)
+            result = run_source(
+                source,
+                tracker=hydra.utils.instantiate(cfg.tracker),
+                make_stream=make_stream,
+                cache=cache,
+                key=cache_key(cfg, weights, source),
+                use_filter=cfg.dynamic_filter,
+                out_dir=out_dir,
+                video=cfg.video,
+                progress=cfg.progress,
+            )
+            results.append(result)
+            seq_metrics = {"fps": result.num_frames / result.wall_seconds, **result.timings}
+            if gt_path is not None:
+                gt = read_mot_file(gt_path)
+                pairs[result.name] = (gt[gt[:, 0] <= result.num_frames], rows_as_mot(result.rows))
+                scores = evaluate(
+                    {result.name: pairs[result.name]},
+                    iou_threshold=cfg.iou_threshold,
+                    min_visibility=cfg.min_visibility,
+                )[result.name]
+                seq_metrics |= {k: scores[k] for k in SCORES}
+            log_metrics_step({f"{result.name}/{k}": v for k, v in seq_metrics.items()}, step=0)
+            log_artifact_file(result.mot_path, "results")
+            if result.video_path is not None:
+                log_artifact_file(result.video_path, "video")
+            log.info("%s: %s", result.name, _brief(seq_metrics))
+        metrics = summary(results, pairs, cfg)
+        log_metrics_step(metrics, step=0)
+        atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+        log_artifact_file(out_dir / "metrics.json")
+    log.info("overall: %s -> %s", _brief(metrics), out_dir)
+    return metrics
+
+
+def summary(results: list[SequenceResult], pairs: dict, cfg: DictConfig) -> dict[str, float]:
+    """Overall scores over all sequences with ground truth, and frame-weighted per-stage timings."""
+    frames = sum(r.num_frames for r in results)
+    metrics: dict[str, float] = {
+        "num_sequences": float(len(results)),
+        "num_frames": float(frames),
+        "num_tracks": float(sum(len(set(r.rows[:, 1].astype(int))) for r in results)),
+        "cached_sequences": float(sum(r.from_cache for r in results)),
+        "fps": frames / sum(r.wall_seconds for r in results),
+    }
+    stages = sorted({k for r in results for k in r.timings})
+    for stage in stages:
+        metrics[stage] = sum(r.timings.get(stage, 0.0) * r.num_frames for r in results) / frames
+    if pairs:
+        overall = evaluate(pairs, iou_threshold=cfg.iou_threshold, min_visibility=cfg.min_visibility)[OVERALL]
+        metrics |= {k: overall[k] for k in SCORES}
+    return metrics
+
+
+def _brief(metrics: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if "/" not in k)
+
+
+@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="track")
+def main(cfg: DictConfig) -> float:
+    """Returns MOTA (what a sweeper maximises); NaN when the sources have no ground truth."""
+    return run(cfg).get("mota", float("nan"))
+
+
+if __name__ == "__main__":
+    main()
