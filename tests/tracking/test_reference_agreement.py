@@ -1,6 +1,6 @@
 """Same detections, same settings: our tracks equal those of a public port of the reference DeepSORT.
 
-The peer (`deep-sort-realtime`, installed by `make bench-tracker`) is not a dependency, so this test
+The peer (`deep-sort-realtime`, installed with --no-deps by the Makefile's setup step) is not a package dependency, so this test
 runs only where it is installed. The peer re-adds each track's last feature to its gallery every frame
 and skips the confidence sort when NMS is off, so the comparison uses unbounded galleries and hands it
 detections already sorted by confidence; everything else is the reference algorithm.

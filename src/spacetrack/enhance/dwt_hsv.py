@@ -197,8 +197,8 @@ class DwtHsvEnhancer:
 
     name: ClassVar[str] = "dwt_hsv"
 
-    wavelet: str = "haar"
-    level: int = 3
+    wavelet: str = "db2"
+    level: int = 2
     target_mean: float = 0.3
     gamma_min: float = 0.5
     detail_gain: float = 1.5
