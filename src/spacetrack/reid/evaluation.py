@@ -132,10 +132,12 @@ def plot_distances(
             ax.hist(
                 values, bins=bins, density=True, alpha=0.55, color=colour, label=f"{name} (n={len(values)})"
             )
+        lines = []
         for t in thresholds:
-            below = fraction_below(arrays[f"{kind}_same"], t)
             ax.axvline(t, color="k", ls="--", lw=1)
-            ax.text(t, ax.get_ylim()[1] * 0.9, f" {t:g}: {below:.0%} same below", fontsize=8)
+            same, diff = (fraction_below(arrays[f"{kind}_{p}"], t) for p in ("same", "diff"))
+            lines.append(f"below {t:g}: same {same:.1%}, different {diff:.2%}")
+        ax.text(0.98, 0.6, "\n".join(lines), transform=ax.transAxes, ha="right", fontsize=8)
         ax.set(title=label, xlabel="cosine distance 1 - a.b", ylabel="density")
         ax.legend(fontsize=8, loc="upper right")
     fig.suptitle(title)
