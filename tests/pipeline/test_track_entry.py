@@ -1,0 +1,127 @@
+"""The whole pipeline through `spacetrack.track.run` on rendered smoke sequences, with the dataset's own
+boxes standing in for the detector: outputs, the motion filter, the cache, and the errors a user meets."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from pipeline_helpers import track_config
+
+from spacetrack import track
+from spacetrack.pipeline import build as build_module
+from spacetrack.pipeline.cache import CacheMismatchError
+from spacetrack.pipeline.weights import MissingWeightsError
+from spacetrack.tracking.io import load_detections
+
+STATIC_SEQ = "seq_005_static_distractors"
+
+
+def _static_overlap(mot_path, static_path) -> int:
+    """Tracker rows whose box overlaps a static object's box in the same frame."""
+    rows = np.loadtxt(mot_path, delimiter=",", ndmin=2)
+    static = np.loadtxt(static_path, delimiter=",", ndmin=2)
+    hits = 0
+    for f, _, x, y, w, h, *_ in rows:
+        for _, _, sx, sy, sw, sh, *_ in static[static[:, 0] == f]:
+            hits += int(x < sx + sw and sx < x + w and y < sy + sh and sy < y + h)
+    return hits
+
+
+@pytest.mark.slow
+def test_pipeline_writes_results_video_metrics_and_cache(smoke_dataset, random_reid, tmp_path):
+    cfg = track_config(
+        smoke_dataset, tmp_path, "detector=ground_truth", f"reid.weights={random_reid}",
+        "tracker=deepsort_original", "tracker.max_cosine_distance=1.0", f"sequence={STATIC_SEQ}",
+        "max_frames=30",
+    )  # fmt: skip
+    metrics = track.run(cfg)
+    out = tmp_path / "out"
+    rows = np.loadtxt(out / f"{STATIC_SEQ}.txt", delimiter=",", ndmin=2)
+    assert rows.shape[1] == 10 and set(rows[:, 6]) == {1} and set(rows[:, 7:].ravel()) == {-1}
+    assert rows[:, 0].max() <= 30 and (out / f"{STATIC_SEQ}.mp4").stat().st_size > 0
+    assert json.loads((out / "metrics.json").read_text())["mota"] == metrics["mota"]
+    assert metrics["mota"] > 0.5 and metrics["num_frames"] == 30 and metrics["cached_sequences"] == 0
+    assert {"detector_ms", "reid_ms", "motion_ms", "tracker_ms"} <= set(metrics)
+    # The filter keeps the parked satellite away from the tracker.
+    assert _static_overlap(out / f"{STATIC_SEQ}.txt", smoke_dataset / STATIC_SEQ / "gt" / "static.txt") == 0
+    # The cache is the DESIGN layout with 128-dim features, readable by the standalone tracker.
+    cache_dir = next((tmp_path / "cache").iterdir())
+    dets = load_detections(cache_dir / f"{STATIC_SEQ}.npy")
+    assert dets.shape[1] == 10 + 128
+    assert np.allclose(np.linalg.norm(dets[:, 10:], axis=1), 1.0, atol=1e-4)
+
+
+@pytest.mark.slow
+def test_cache_serves_retracking_without_networks_and_filter_switch(smoke_dataset, tmp_path, monkeypatch):
+    common = [
+        "detector=ground_truth",
+        "reid.weights=none",
+        "tracker=sort",
+        f"sequence={STATIC_SEQ}",
+        "video=false",
+    ]
+    first = track.run(track_config(smoke_dataset, tmp_path, *common))
+
+    def no_networks(*args, **kwargs):
+        raise AssertionError("a cached sequence must not build the detection stream")
+
+    monkeypatch.setattr(track, "build_stream", no_networks)
+    again = track.run(track_config(smoke_dataset, tmp_path, *common))
+    assert again["cached_sequences"] == 1 and again["mota"] == first["mota"]
+    unfiltered = track.run(track_config(smoke_dataset, tmp_path, *common, "dynamic_filter=false"))
+    assert unfiltered["fp"] > first["fp"]
+    overlap = _static_overlap(
+        tmp_path / "out" / f"{STATIC_SEQ}.txt", smoke_dataset / STATIC_SEQ / "gt" / "static.txt"
+    )
+    assert overlap > 10  # without the filter the parked satellite becomes a track
+
+
+@pytest.mark.slow
+def test_stale_cache_is_refused_or_rebuilt(smoke_dataset, random_reid, tmp_path):
+    common = [
+        "detector=ground_truth",
+        "tracker=sort",
+        f"sequence={STATIC_SEQ}",
+        "video=false",
+        "max_frames=8",
+    ]
+    track.run(track_config(smoke_dataset, tmp_path, *common, "reid.weights=none"))
+    meta = next((tmp_path / "cache").glob("*/*.json"))
+    before = meta.read_text()
+    with pytest.raises(CacheMismatchError, match=r"reid: cached 'none'.*cache.rebuild=true"):
+        track.run(
+            track_config(
+                smoke_dataset, tmp_path, *common, f"reid.weights={random_reid}", "cache.rebuild=false"
+            )
+        )
+    assert meta.read_text() == before
+    rebuilt = track.run(track_config(smoke_dataset, tmp_path, *common, f"reid.weights={random_reid}"))
+    assert rebuilt["cached_sequences"] == 0 and "sha256:" in json.loads(meta.read_text())["key"]["reid"]
+
+
+def test_fold_without_trained_model_names_the_command(smoke_dataset, tmp_path):
+    cfg = track_config(smoke_dataset, tmp_path, "fold=4", f"logger.tracking_uri=sqlite:///{tmp_path}/m.db")
+    with pytest.raises(MissingWeightsError, match="make train FOLD=4"):
+        build_module.resolve_weights(cfg)
+    cfg = track_config(
+        smoke_dataset,
+        tmp_path,
+        "fold=4",
+        "detector=ground_truth",
+        f"logger.tracking_uri=sqlite:///{tmp_path}/m.db",
+    )
+    with pytest.raises(MissingWeightsError, match="make train-reid FOLD=4"):
+        build_module.resolve_weights(cfg)
+
+
+def test_appearance_tracker_without_reid_and_nothing_to_track_are_errors(smoke_dataset, tmp_path):
+    cfg = track_config(
+        smoke_dataset, tmp_path, "detector=ground_truth", "reid.weights=none", f"sequence={STATIC_SEQ}"
+    )
+    with pytest.raises(ValueError, match="tracker=sort"):
+        track.run(cfg)
+    with pytest.raises(ValueError, match="fold=K, sequence=NAME or source="):
+        track.run(track_config(smoke_dataset, tmp_path, "detector=ground_truth", "reid.weights=none"))
+    assert not (tmp_path / "out").exists()
