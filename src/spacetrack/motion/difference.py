@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from spacetrack.motion.compensation import SceneShift, warp_shift
-from spacetrack.motion.frames import FrameGuard, match_exposure, to_grey
+from spacetrack.motion.frames import FrameGuard, scale_exposure, to_grey
 
 
 def binarise(diff: np.ndarray, *, alpha: float, threshold: float) -> np.ndarray:
@@ -63,7 +63,8 @@ class FrameDifference(ABC):
         self.match_exposure = match_exposure
         self._guard = FrameGuard()
         self._shift = SceneShift()
-        self._history: deque[tuple[np.ndarray, tuple[float, float]]] = deque(maxlen=self.span)
+        # (grey frame, scene offset (x, y), mean grey level) of the last `span` frames
+        self._history: deque[tuple[np.ndarray, tuple[float, float], float]] = deque(maxlen=self.span)
 
     def reset(self) -> None:
         self._guard.reset()
@@ -78,15 +79,16 @@ class FrameDifference(ABC):
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         grey = to_grey(self._guard.check(frame))
         offset = self._shift.update(grey) if self.compensate else (0.0, 0.0)
-        self._history.append((grey, offset))
+        self._history.append((grey, offset, cv2.mean(grey)[0] if self.match_exposure else 0.0))
         if len(self._history) < self.span:
             return None
-        centre, (cx, cy) = self._history[self.span - 1 - self.latency]
-        # Pixels that entered the view have no past: they take the centre frame's value, i.e. no change.
-        aligned = [warp_shift(g, cx - ox, cy - oy, centre) for g, (ox, oy) in self._history]
-        if self.match_exposure:
-            level = cv2.mean(centre)[0]
-            aligned = [match_exposure(g, level) for g in aligned]
+        centre, (cx, cy), level = self._history[self.span - 1 - self.latency]
+        aligned = []
+        for g, (ox, oy), mean in self._history:
+            if self.match_exposure:
+                g = scale_exposure(g, mean, level)
+            # Pixels that entered the view have no past: they take the centre frame's value (no change).
+            aligned.append(warp_shift(g, cx - ox, cy - oy, centre))
         return self._combine(aligned)
 
     def _moving(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

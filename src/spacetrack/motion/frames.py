@@ -38,13 +38,19 @@ def match_exposure(grey: np.ndarray, mean: float) -> np.ndarray:
     """`grey` (uint8) scaled so its mean grey level becomes `mean` (saturating at 255).
 
     Undoes a change of exposure or gain, which multiplies every pixel: the adaptive threshold of eq. 17
-    absorbs an added light level, not a doubled one. A black frame, or one within 1 % of `mean` (a change
-    of at most 2.5 grey levels), is returned as it is.
+    absorbs an added light level, not a doubled one.
     """
-    current = cv2.mean(grey)[0]
-    if current <= 0 or mean <= 0 or abs(mean / current - 1) < 0.01:
+    return scale_exposure(grey, cv2.mean(grey)[0], mean)
+
+
+def scale_exposure(grey: np.ndarray, current: float, target: float) -> np.ndarray:
+    """`grey` (uint8, mean grey level `current`) scaled by target / current, saturating at 255.
+
+    A black frame, or a ratio within 1 % of one (a change of at most 2.5 grey levels), is returned as it is.
+    """
+    if current <= 0 or target <= 0 or abs(target / current - 1) < 0.01:
         return grey
-    return cv2.convertScaleAbs(grey, alpha=mean / current)
+    return cv2.convertScaleAbs(grey, alpha=target / current)
 
 
 class FrameGuard:

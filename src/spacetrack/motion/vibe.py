@@ -159,10 +159,17 @@ class ViBe:
         open_ = np.flatnonzero(foreground)
         if first < self.num_samples and len(open_):
             n = count.size
-            values = image.reshape(n, -1)[open_].astype(np.int32)
-            rest = self._model[first:].reshape(self.num_samples - first, n, -1)[:, open_].astype(np.int32)
-            dist2 = ((rest - values) ** 2).sum(axis=2)
-            matches = count.reshape(n)[open_] + (dist2 < self.radius**2).sum(axis=0)
+            rest = self._model[first:].reshape(self.num_samples - first, n, -1)[:, open_]
+            values = image.reshape(n, -1)[open_]
+            if rest.shape[2] == 1:  # grey: uint8 distances, no squares
+                near = (
+                    cv2.absdiff(rest[..., 0], np.broadcast_to(values[:, 0], rest.shape[:2]).copy())
+                    < self.radius
+                )
+            else:
+                dist2 = ((rest.astype(np.int32) - values.astype(np.int32)) ** 2).sum(axis=2)
+                near = dist2 < self.radius**2
+            matches = count.reshape(n)[open_] + np.count_nonzero(near, axis=0)
             foreground.reshape(n)[open_[matches >= self.min_matches]] = 0
         return foreground
 
