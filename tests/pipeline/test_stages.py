@@ -1,0 +1,79 @@
+"""The streaming stages: a frame's detections wait for its own motion mask, in order, none lost."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spacetrack.motion import DynamicFilter
+from spacetrack.motion.blobs import Blob
+from spacetrack.pipeline.sources import FrameSource
+from spacetrack.pipeline.stages import DetectionStream, detection_rows
+
+
+class OneBoxDetector:
+    """A box at x = 10 * frame in every frame."""
+
+    def begin(self, source):
+        pass
+
+    def __call__(self, rgb, frame):
+        return np.array([[10.0 * frame, 5, 4, 4, 0.9, 1]])
+
+
+class LaggingMotion:
+    """Like the five-frame difference: latency 2, first mask for the third frame; its only blob sits on
+    the box of the frame it answers for."""
+
+    latency = 2
+
+    def reset(self):
+        self.count, self.mask_index, self.blobs = 0, -1, []
+
+    def apply(self, frame):
+        self.count += 1
+        if self.count < 2 * self.latency + 1:
+            return None
+        self.mask_index = self.count - 1 - self.latency
+        x = 10.0 * (self.mask_index + 1)
+        self.blobs = [Blob((x + 2, 7.0), (int(x), 5, 4, 4), 16.0)]
+        return np.zeros((2, 2), np.uint8)
+
+
+def _source(n: int) -> FrameSource:
+    frames = (np.zeros((20, 100, 3), np.uint8) for _ in range(n))
+    return FrameSource("fake", "fake frames", 10.0, n, frames)
+
+
+def test_detections_are_paired_with_the_blobs_of_their_own_frame():
+    stream = DetectionStream(
+        enhancer=lambda rgb: rgb,
+        detector=OneBoxDetector(),
+        encoder=lambda rgb, boxes: np.ones((len(boxes), 3)),
+        motion=LaggingMotion(),
+        dynamic_filter=DynamicFilter(min_overlap=0.5, max_distance=0.0),
+    )
+    out = list(stream.run(_source(6), keep_images=True))
+    assert [f.frame for f in out] == [1, 2, 3, 4, 5, 6]
+    # Frames 1-4 get masks of their own frame (1 and 2 wait for frame 3's, whose blob is elsewhere);
+    # 5 and 6 never get one and take frame 4's blob, which is elsewhere too.
+    assert [bool(f.dynamic[0]) for f in out] == [False, False, True, True, False, False]
+    assert out[0].rows.shape == (1, 13) and out[0].image.shape == (20, 100, 3)
+    assert out[3].classes.tolist() == [1] and stream.latency == 2
+
+
+def test_without_motion_every_detection_is_dynamic():
+    stream = DetectionStream(
+        enhancer=lambda rgb: rgb,
+        detector=OneBoxDetector(),
+        encoder=None,
+        motion=None,
+        dynamic_filter=DynamicFilter(),
+    )
+    out = list(stream.run(_source(3)))
+    assert all(f.dynamic.all() for f in out) and out[0].rows.shape == (1, 10) and out[0].image is None
+    assert set(stream.timer.seconds) >= {"detector", "reid"}
+
+
+def test_detection_rows_follow_the_design_layout():
+    rows = detection_rows(7, np.array([[1.0, 2, 3, 4, 0.5, 2]]), np.array([[0.6, 0.8]]))
+    assert rows.tolist() == [[7, -1, 1, 2, 3, 4, 0.5, -1, -1, -1, 0.6, 0.8]]
