@@ -1,0 +1,28 @@
+"""The detector stage on a random-init checkpoint: boxes come back in the frame's own pixels."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from spacetrack.engine.checkpoint import save_checkpoint
+from spacetrack.models.yolo import YOLOv5
+from spacetrack.pipeline import YoloDetector
+
+
+def test_boxes_are_tlwh_inside_the_frame(tmp_path):
+    torch.manual_seed(0)
+    model = YOLOv5(num_classes=3, depth_multiple=0.33, width_multiple=0.125)
+    weights = tmp_path / "best.pt"
+    save_checkpoint(weights, {"arch": model.arch, "ema": model.state_dict()})
+    detector = YoloDetector(weights=weights, image_size=128, conf_threshold=0.0, max_det=50, device="cpu")
+    rgb = np.random.default_rng(0).integers(0, 255, (90, 200, 3), dtype=np.uint8)
+    boxes = detector(rgb, 1)
+    assert boxes.shape[1] == 6 and 0 < len(boxes) <= 50
+    x, y, w, h = boxes[:, :4].T
+    assert (x >= 0).all() and (y >= 0).all() and (w > 0).all() and (h > 0).all()
+    assert (x + w <= 200 + 1e-6).all() and (y + h <= 90 + 1e-6).all()
+    assert set(np.unique(boxes[:, 5])) <= {0, 1, 2}
+    with pytest.raises(ValueError, match="multiple of 32"):
+        YoloDetector(weights=weights, image_size=100)
