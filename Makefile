@@ -12,6 +12,7 @@ ARGS ?=
 .PHONY: train cv bench-detector
 .PHONY: eval-motion bench-motion
 .PHONY: train-reid cv-reid bench-reid
+.PHONY: track track-cv sweep bench-pipeline table4
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -100,7 +101,22 @@ cv-reid: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of
 bench-reid: $(STAMP) ## re-ID encoder ms per crop at batch 1 and 32 against per-box OpenCV crops -> reports/reid.json
 	$(PY) benchmarks/bench_reid.py $(ARGS)
 
-bench: bench-enhance bench-tracker bench-detector bench-motion bench-reid ## run every benchmark
+track: $(STAMP) $(DEFAULT_DATA)/manifest.json ## track FOLD's sequences with its detector and re-ID from MLflow: MOT files, MP4s, MOTA/IDF1 (ARGS="tracker=deepsort_original")
+	$(PY) -m spacetrack.track fold=$(FOLD) $(ARGS)
+
+track-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## track all nine folds (Hydra multirun): one MLflow parent run with MOTA mean, std and a bar chart
+	$(PY) -m spacetrack.track -m fold=0,1,2,3,4,5,6,7,8 video=false $(ARGS)
+
+sweep: $(STAMP) $(DEFAULT_DATA)/manifest.json ## sweep the tracker gates on FOLD from the detection cache: MLflow run per point, MOTA heatmap
+	$(PY) -m spacetrack.track -m +sweep=grid fold=$(FOLD) $(ARGS)
+
+bench-pipeline: $(STAMP) ## time the whole pipeline per 640x480 frame, stage by stage -> reports/pipeline.json
+	$(PY) benchmarks/bench_pipeline.py $(ARGS)
+
+table4: $(STAMP) $(DEFAULT_DATA)/manifest.json ## Table 4 (MOTA per fold and row), resumable per fold and row -> experiments/table4_mota
+	$(PY) experiments/table4_mota/run.py $(ARGS)
+
+bench: bench-enhance bench-tracker bench-detector bench-motion bench-reid bench-pipeline ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun
