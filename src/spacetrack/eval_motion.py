@@ -31,7 +31,16 @@ from spacetrack.viz.sheet import contact_sheet
 log = logging.getLogger(__name__)
 
 OVERALL = "overall"
-METRICS = ("pixel_f1", "lit_f1", "blob_recall", "blob_precision", "pixel_precision", "pixel_recall")
+METRICS = (
+    "pixel_f1",
+    "lit_f1",
+    "blob_recall",
+    "blob_precision",
+    "dynamic_recall",
+    "static_rejection",
+    "pixel_precision",
+    "pixel_recall",
+)
 
 
 def build_methods(methods: DictConfig, *, compensate: bool) -> dict:
@@ -73,7 +82,7 @@ def read_truth_mask(seq_dir: Path, index: int, shape: tuple[int, int]) -> np.nda
 
 
 def target_boxes(gt: np.ndarray, min_visibility: float) -> dict[int, np.ndarray]:
-    """{0-based frame: (N, 4) tlwh boxes of the visible moving targets} from MOT ground-truth rows."""
+    """{0-based frame: (N, 4) tlwh boxes of the visible objects} from MOT rows (gt.txt or static.txt)."""
     visible = gt[(gt[:, 6] > 0) & (gt[:, 8] >= min_visibility)]
     return {int(f) - 1: visible[visible[:, 0] == f, 2:6] for f in np.unique(visible[:, 0])}
 
@@ -94,6 +103,9 @@ def score_sequence(cfg: DictConfig, seq_dir: Path, detectors: dict, sheet_at: fl
     if cfg.max_frames:
         paths = paths[: cfg.max_frames]
     boxes = target_boxes(read_mot(seq_dir / "gt" / "gt.txt"), cfg.min_visibility)
+    static_path = seq_dir / "gt" / "static.txt"
+    statics = target_boxes(read_mot(static_path), cfg.min_visibility) if static_path.is_file() else {}
+    dynamic = instantiate(cfg.dynamic)
     latency = max(d.latency for d in detectors.values())
     first, last = max(cfg.warmup, latency), len(paths) - 1 - latency
     if last < first:
@@ -124,6 +136,8 @@ def score_sequence(cfg: DictConfig, seq_dir: Path, detectors: dict, sheet_at: fl
                 truths[t],
                 boxes.get(t, no_targets),
                 dark=darks[t],
+                static_boxes=statics.get(t, no_targets),
+                dynamic=dynamic,
                 blob_iou=cfg.blob_iou,
                 min_blob_area=cfg.min_blob_area,
             )

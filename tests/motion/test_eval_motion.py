@@ -39,7 +39,7 @@ def dataset(tmp_path, scene):
 def test_every_motion_config_builds_its_object():
     names = {p.stem for p in (CONF_DIR / "motion").glob("*.yaml")}
     assert {"two_frame", "three_frame", "five_frame", "vibe", "mog2", "knn", "fusion", "dynamic"} <= names
-    cfg = compose_config("eval_motion", ["logger=none", "+motion@dynamic=dynamic"])
+    cfg = compose_config("eval_motion", ["logger=none"])
     for method in cfg.methods.values():
         assert hasattr(instantiate(method), "apply")
     assert instantiate(cfg.dynamic).min_overlap == cfg.dynamic.min_overlap
@@ -56,6 +56,7 @@ def test_scores_every_method_per_scenario_and_writes_the_report(dataset, tmp_pat
     # a bright square on a still black field: the fusion finds it, blob for blob
     assert metrics["nominal.fusion.pixel_f1"] > 0.8
     assert metrics["nominal.fusion.blob_recall"] == 1.0
+    assert metrics["nominal.fusion.dynamic_recall"] == 1.0
     record = json.loads((out / "accuracy.json").read_text())
     assert record["scored_with_compensation"] == ["slew"]
     assert record["results"]["nominal"]["fusion"]["frames"] == 12 - 2 - 2

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from spacetrack.motion.dynamic import DynamicFilter
 from spacetrack.motion.evaluation import MotionScore, iou_tlwh
 
 
@@ -53,3 +54,16 @@ def test_empty_scores_are_zero_and_merge_adds():
     assert a.merge(a) == MotionScore(tp=2, fp=4, fn=6, frames=2)
     with pytest.raises(ValueError, match="shape"):
         a.add_frame(np.zeros((2, 2)), np.zeros((3, 2)), np.zeros((0, 4)))
+
+
+def test_dynamic_identification_is_scored_on_true_moving_and_static_boxes():
+    truth = np.zeros((40, 40), np.uint8)
+    truth[5:12, 5:12] = 255
+    mask = truth.copy()
+    mask[30:36, 30:36] = 255  # motion on the static object too: it will be called dynamic
+    static = np.array([[30, 30, 6, 6], [20, 2, 5, 5]])
+    score = MotionScore()
+    score.add_frame(mask, truth, np.array([[5, 5, 7, 7]]), static_boxes=static, dynamic=DynamicFilter())
+    assert (score.moving_boxes, score.moving_dynamic, score.static_boxes, score.static_static) == (1, 1, 2, 1)
+    s = score.summary()
+    assert s["dynamic_recall"] == 1.0 and s["static_rejection"] == 0.5
