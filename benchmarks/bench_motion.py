@@ -23,6 +23,7 @@ import numpy as np
 from hydra.utils import instantiate
 
 from spacetrack.config import REPO_ROOT, compose_config
+from spacetrack.io import atomic_write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import markdown_table, summarize, write_report  # noqa: E402
@@ -126,7 +127,7 @@ def main() -> None:
         f"({cv2.getNumThreads()} OpenCV threads), `make bench-motion`. Paper: its Table 3 (own camera, "
         "own machine); compare the ratios, not the milliseconds.\n\n" + markdown_table(paper_header, table3)
     )
-    (REPO_ROOT / "experiments" / "table3_motion" / "timing.md").write_text(timing)
+    atomic_write_text(REPO_ROOT / "experiments" / "table3_motion" / "timing.md", timing)
     print(md)
 
 
