@@ -52,11 +52,15 @@ def select_sources(cfg: DictConfig) -> list[tuple[FrameSource, Path | None]]:
 
 
 def cache_folder(cfg: DictConfig) -> Path:
-    """One cache folder per detector kind and enhancement, so rows of Table 4 never evict each other."""
+    """One cache folder per detector kind, enhancement and re-ID use, so the rows of Table 4 never evict
+    each other's detections."""
     kind = str(cfg.detector._target_).rsplit(".", 1)[-1]
     if "weights" in cfg.detector:
         kind += f"-{cfg.detector_run.model}"
-    return Path(cfg.cache.dir) / f"{kind}-{cfg.enhance._target_.rsplit('.', 1)[-1]}"
+    kind += f"-{cfg.enhance._target_.rsplit('.', 1)[-1]}"
+    if cfg.reid.weights == "none":
+        kind += "-noreid"
+    return Path(cfg.cache.dir) / kind
 
 
 def run(cfg: DictConfig) -> dict[str, float]:

@@ -79,26 +79,21 @@ def test_cache_serves_retracking_without_networks_and_filter_switch(smoke_datase
 
 
 @pytest.mark.slow
-def test_stale_cache_is_refused_or_rebuilt(smoke_dataset, random_reid, tmp_path):
-    common = [
-        "detector=ground_truth",
-        "tracker=sort",
-        f"sequence={STATIC_SEQ}",
-        "video=false",
-        "max_frames=8",
-    ]
-    track.run(track_config(smoke_dataset, tmp_path, *common, "reid.weights=none"))
+def test_stale_cache_is_refused_or_rebuilt(smoke_dataset, tmp_path):
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
+    common += ["video=false", "max_frames=8"]
+    track.run(track_config(smoke_dataset, tmp_path, *common))
     meta = next((tmp_path / "cache").glob("*/*.json"))
     before = meta.read_text()
-    with pytest.raises(CacheMismatchError, match=r"reid: cached 'none'.*cache.rebuild=true"):
-        track.run(
-            track_config(
-                smoke_dataset, tmp_path, *common, f"reid.weights={random_reid}", "cache.rebuild=false"
-            )
-        )
+    changed = [*common, "dynamic.max_distance=3.0"]
+    with pytest.raises(
+        CacheMismatchError, match=r"motion: cached '\w+', configured '\w+'.*cache.rebuild=true"
+    ):
+        track.run(track_config(smoke_dataset, tmp_path, *changed, "cache.rebuild=false"))
     assert meta.read_text() == before
-    rebuilt = track.run(track_config(smoke_dataset, tmp_path, *common, f"reid.weights={random_reid}"))
-    assert rebuilt["cached_sequences"] == 0 and "sha256:" in json.loads(meta.read_text())["key"]["reid"]
+    rebuilt = track.run(track_config(smoke_dataset, tmp_path, *changed))
+    assert rebuilt["cached_sequences"] == 0 and meta.read_text() != before
+    assert track.run(track_config(smoke_dataset, tmp_path, *changed))["cached_sequences"] == 1
 
 
 def test_fold_without_trained_model_names_the_command(smoke_dataset, tmp_path):
