@@ -148,9 +148,12 @@ class Trainer:
                     raw = model(images.to(device).float() / 255)
                 loss, components = loss_fn([p.float() for p in raw], targets.to(device))
                 if not torch.isfinite(loss):
+                    kept = (
+                        f"{weights / 'last.pt'} (epoch {epoch - 1}) is kept" if epoch else "no checkpoint yet"
+                    )
                     raise FloatingPointError(
-                        f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped. The last good "
-                        f"checkpoint is {weights / 'last.pt'} (epochs before {epoch})"
+                        f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped, {kept}. Lower "
+                        "train.trainer.lr0 or check the labels."
                     )
                 scaler.scale(loss).backward()
                 if (i + 1) % accumulate == 0 or i + 1 == num_batches:
