@@ -147,7 +147,7 @@ def score_sequence(cfg: DictConfig, seq_dir: Path, detectors: dict, sheet_at: fl
 
 
 def markdown(results: dict[str, dict[str, dict[str, float]]], methods: list[str]) -> str:
-    """One markdown table per metric: a row per scenario, a column per method."""
+    """One markdown table per metric: a row per scenario, a column per method; "-" where undefined."""
     parts = []
     for metric in METRICS:
         lines = [
@@ -157,11 +157,9 @@ def markdown(results: dict[str, dict[str, dict[str, float]]], methods: list[str]
             "|" + "---|" * (len(methods) + 1),
         ]
         for label, by_method in results.items():
-            cells = [f"{by_method[m][metric]:.3f}" for m in methods]
-            best = max(by_method[m][metric] for m in methods)
-            cells = [
-                f"**{c}**" if by_method[m][metric] == best else c for c, m in zip(cells, methods, strict=True)
-            ]
+            values = [by_method[m][metric] for m in methods]
+            best = max((v for v in values if v == v), default=None)
+            cells = ["-" if v != v else f"**{v:.3f}**" if v == best else f"{v:.3f}" for v in values]
             lines.append(f"| {label} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"

@@ -50,6 +50,7 @@ def test_dark_truth_pixels_are_left_out_of_the_lit_scores():
 def test_empty_scores_are_zero_and_merge_adds():
     empty = MotionScore().summary()
     assert empty["pixel_f1"] == 0.0 and empty["blob_recall"] == 0.0
+    assert np.isnan(empty["dynamic_recall"]) and np.isnan(empty["static_rejection"])
     a = MotionScore(tp=1, fp=2, fn=3, frames=1)
     assert a.merge(a) == MotionScore(tp=2, fp=4, fn=6, frames=2)
     with pytest.raises(ValueError, match="shape"):

@@ -116,7 +116,12 @@ class MotionScore:
 
     def summary(self) -> dict[str, float]:
         """pixel_ and lit_ precision, recall and f1, blob_recall, blob_precision, dynamic_recall (moving
-        targets marked dynamic), static_rejection (static objects marked static), all 0-1, and frames."""
+        targets marked dynamic), static_rejection (static objects marked static), all 0-1, and frames.
+
+        The two identification rates are NaN when there was nothing to classify (no dynamic filter, or no
+        static object in the frames): unlike a miss, there is no score to give.
+        """
+        nan = float("nan")
         return {
             "pixel_precision": ratio(self.tp, self.tp + self.fp),
             "pixel_recall": ratio(self.tp, self.tp + self.fn),
@@ -126,7 +131,7 @@ class MotionScore:
             "lit_f1": ratio(2 * self.lit_tp, 2 * self.lit_tp + self.lit_fp + self.lit_fn),
             "blob_recall": ratio(self.targets_found, self.targets),
             "blob_precision": ratio(self.blobs_correct, self.blobs),
-            "dynamic_recall": ratio(self.moving_dynamic, self.moving_boxes),
-            "static_rejection": ratio(self.static_static, self.static_boxes),
+            "dynamic_recall": ratio(self.moving_dynamic, self.moving_boxes) if self.moving_boxes else nan,
+            "static_rejection": ratio(self.static_static, self.static_boxes) if self.static_boxes else nan,
             "frames": float(self.frames),
         }
