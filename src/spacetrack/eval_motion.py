@@ -146,6 +146,15 @@ def score_sequence(cfg: DictConfig, seq_dir: Path, detectors: dict, sheet_at: fl
     return scores, [(label, tiles[label]) for label in ("frame", "ground truth", *detectors)]
 
 
+def json_safe(tree: object) -> object:
+    """`tree` with NaN floats (undefined rates) replaced by None, so the file is strict JSON (null)."""
+    if isinstance(tree, dict):
+        return {k: json_safe(v) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [json_safe(v) for v in tree]
+    return None if isinstance(tree, float) and tree != tree else tree
+
+
 def markdown(results: dict[str, dict[str, dict[str, float]]], methods: list[str]) -> str:
     """One markdown table per metric: a row per scenario, a column per method; "-" where undefined."""
     parts = []
@@ -218,7 +227,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             "config": resolved_dict(cfg),
             "results": results,
         }
-        atomic_write_text(out_dir / "accuracy.json", json.dumps(record, indent=2) + "\n")
+        atomic_write_text(out_dir / "accuracy.json", json.dumps(json_safe(record), indent=2) + "\n")
         atomic_write_text(out_dir / "accuracy.md", markdown(results, list(cfg.methods)))
         log_metrics_step(metrics, step=0)
         for path in [

@@ -57,7 +57,8 @@ def test_scores_every_method_per_scenario_and_writes_the_report(dataset, tmp_pat
     assert metrics["nominal.fusion.pixel_f1"] > 0.8
     assert metrics["nominal.fusion.blob_recall"] == 1.0
     assert metrics["nominal.fusion.dynamic_recall"] == 1.0
-    record = json.loads((out / "accuracy.json").read_text())
+    record = json.loads((out / "accuracy.json").read_text(), parse_constant=pytest.fail)
+    assert record["results"]["nominal"]["fusion"]["static_rejection"] is None  # no static object
     assert record["scored_with_compensation"] == ["slew"]
     assert record["results"]["nominal"]["fusion"]["frames"] == 12 - 2 - 2
     assert "| nominal |" in (out / "accuracy.md").read_text()
