@@ -95,6 +95,11 @@ def load_results() -> dict[str, dict[int, dict]]:
     return out
 
 
+def _command_template(record: dict) -> str:
+    k = record["fold"]
+    return record["command"].replace(f"fold={k}", "fold=K").replace(f"/fold{k}", "/foldK")
+
+
 def write_tables(num_folds: int = 9) -> list[Path]:
     """table4.md and table4.json from every result present; returns their paths."""
     results = load_results()
@@ -125,7 +130,7 @@ def write_tables(num_folds: int = 9) -> list[Path]:
             "mota_std": float(np.std(mota)),
             "idf1_mean": idf1,
             **totals,
-            "command": next(iter(done.values()))["command"].replace(f"fold={min(done)}", "fold=K"),
+            "command": _command_template(next(iter(done.values()))),
             "profile": next(iter(done.values()))["profile"],
         }
         lines.append(
