@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from spacetrack.motion.blobs import Blob, find_blobs
-from spacetrack.motion.dynamic import DynamicFilter, overlap_min_area
+from spacetrack.motion.dynamic import DynamicFilter, coverage, overlap_min_area
 
 
 def test_find_blobs_centroid_box_and_area():
@@ -16,9 +16,10 @@ def test_find_blobs_centroid_box_and_area():
     assert find_blobs(mask, min_area=1) == [big]
 
 
-def test_overlap_is_over_the_smaller_box():
-    overlap = overlap_min_area([[0, 0, 10, 10]], [[2, 2, 2, 2], [8, 0, 10, 10], [50, 50, 1, 1]])
-    np.testing.assert_allclose(overlap, [[1.0, 0.2, 0.0]])
+def test_overlap_is_over_the_smaller_box_and_coverage_over_the_first():
+    others = [[2, 2, 2, 2], [8, 0, 10, 10], [50, 50, 1, 1]]
+    np.testing.assert_allclose(overlap_min_area([[0, 0, 10, 10]], others), [[1.0, 0.2, 0.0]])
+    np.testing.assert_allclose(coverage([[0, 0, 10, 10]], others), [[0.04, 0.2, 0.0]])
 
 
 def test_boxes_with_a_blob_are_dynamic_and_the_others_static():
@@ -35,6 +36,13 @@ def test_boxes_with_a_blob_are_dynamic_and_the_others_static():
     assert not DynamicFilter()(boxes, []).any()
 
 
+def test_a_large_static_box_crossed_by_a_small_blob_stays_static():
+    planet = np.array([[0, 200, 400, 280]])
+    crossing = [Blob((100.0, 300.0), (95, 295, 10, 10), 81.0)]
+    assert not DynamicFilter(min_coverage=0.1)(planet, crossing).any()
+    assert DynamicFilter(min_coverage=0.0)(planet, crossing).all()
+
+
 def test_select_keeps_the_rows_of_moving_detections():
     detections = np.zeros((2, 12))
     detections[:, 2:6] = [[12, 12, 10, 10], [300, 300, 20, 20]]
@@ -46,5 +54,7 @@ def test_select_keeps_the_rows_of_moving_detections():
 def test_bad_thresholds():
     with pytest.raises(ValueError, match="min_overlap"):
         DynamicFilter(min_overlap=0)
+    with pytest.raises(ValueError, match="min_coverage"):
+        DynamicFilter(min_coverage=1.5)
     with pytest.raises(ValueError, match="max_distance"):
         DynamicFilter(max_distance=-1)

@@ -1,9 +1,11 @@
 """Dynamic-target identification: which detector boxes are moving targets, which are static objects.
 
 The paper matches the detector's positions with the fusion's moving regions "by the threshold". Here a box
-is dynamic when a motion blob of the same frame overlaps it enough, or when a blob's centroid lies close
-enough to the box centre (a small target's blob may be offset by the smoothing). Static objects (parked
-satellites, stars) have no blob, so they never reach the tracker.
+is dynamic when a motion blob of the same frame overlaps it enough (relative to the smaller of the two)
+and covers enough of the box, or when a blob's centroid lies close enough to the box centre (a small
+target's blob may be offset by the smoothing). Static objects (parked satellites, stars) have no blob, so
+they never reach the tracker; the coverage test keeps a large static box (a planet limb) static when a
+small moving target crosses it.
 
 Pair detections of frame t with the blobs of frame t: a fusion detector returns the blobs of frame
 `mask_index`, which is `latency` frames behind the newest frame fed.
@@ -14,6 +16,12 @@ from __future__ import annotations
 import numpy as np
 
 from spacetrack.motion.blobs import Blob, blob_boxes, intersections
+
+
+def coverage(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> np.ndarray:
+    """(N, M) fraction of box a's area inside box b, for boxes in tlwh pixels (0 for an empty box a)."""
+    inter, area_a, _ = intersections(a_tlwh, b_tlwh)
+    return np.divide(inter, area_a[:, None], out=np.zeros_like(inter), where=area_a[:, None] > 0)
 
 
 def overlap_min_area(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> np.ndarray:
@@ -32,17 +40,23 @@ class DynamicFilter:
 
     Args:
         min_overlap: a box is dynamic if some blob's intersection with it, over the smaller of the two
-            areas, is at least this (0-1).
-        max_distance: ... or if some blob's centroid lies within this many pixels of the box centre;
+            areas, is at least this (0-1) ...
+        min_coverage: ... and the same blob's box covers at least this fraction of the box (0-1);
+        max_distance: or if some blob's centroid lies within this many pixels of the box centre;
             0 turns the distance test off.
     """
 
-    def __init__(self, *, min_overlap: float = 0.3, max_distance: float = 8.0) -> None:
+    def __init__(
+        self, *, min_overlap: float = 0.3, min_coverage: float = 0.1, max_distance: float = 8.0
+    ) -> None:
         if not 0 < min_overlap <= 1:
             raise ValueError(f"min_overlap must lie in (0, 1], got {min_overlap}")
+        if not 0 <= min_coverage <= 1:
+            raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage}")
         if max_distance < 0:
             raise ValueError(f"max_distance must be >= 0 pixels, got {max_distance}")
         self.min_overlap = min_overlap
+        self.min_coverage = min_coverage
         self.max_distance = max_distance
 
     def __call__(self, boxes_tlwh: np.ndarray, blobs: list[Blob]) -> np.ndarray:
@@ -50,7 +64,9 @@ class DynamicFilter:
         boxes = np.asarray(boxes_tlwh, dtype=np.float64).reshape(-1, 4)
         if len(boxes) == 0 or not blobs:
             return np.zeros(len(boxes), dtype=bool)
-        dynamic = (overlap_min_area(boxes, blob_boxes(blobs)) >= self.min_overlap).any(axis=1)
+        others = blob_boxes(blobs)
+        overlapping = overlap_min_area(boxes, others) >= self.min_overlap
+        dynamic = (overlapping & (coverage(boxes, others) >= self.min_coverage)).any(axis=1)
         if self.max_distance > 0:
             centres = boxes[:, :2] + boxes[:, 2:] / 2
             centroids = np.array([b.centroid for b in blobs])
