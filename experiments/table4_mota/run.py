@@ -87,6 +87,11 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
     }
 
 
+def _git(*args: str) -> str:
+    done = subprocess.run(["git", "-C", str(REPO_ROOT), *args], capture_output=True, text=True)
+    return done.stdout.strip()
+
+
 def load_results() -> dict[str, dict[int, dict]]:
     out: dict[str, dict[int, dict]] = {}
     for path in sorted(RESULTS.glob("*/fold*.json")):
