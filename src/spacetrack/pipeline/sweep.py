@@ -9,6 +9,7 @@ into the sweep folder, logs them on the parent with the best point and the mean 
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 from contextlib import ExitStack
@@ -108,9 +109,14 @@ class SweepCallback(Callback):
         self.points: list[dict[str, Any]] = []
         self._stack = ExitStack()
         self._parent_id: str | None = None
+        self._folder = Path(".")
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self.points = []
+        self._folder = Path(config.hydra.sweep.dir)
+        # Hydra skips on_multirun_end when a job fails: close the parent and report the finished points
+        # at exit instead, so a failed point never leaves the parent run open.
+        atexit.register(self._finish, failed=True)
         if not config.logger.enabled:
             return
         summary = OmegaConf.create(
@@ -136,11 +142,19 @@ class SweepCallback(Callback):
         self.points.append({"overrides": overrides, "metrics": metrics, "output_dir": str(out_dir)})
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        self._finish(failed=False)
+
+    def _finish(self, *, failed: bool) -> None:
+        atexit.unregister(self._finish)
         try:
             if self.points:
-                self._report(Path(config.hydra.sweep.dir))
+                self._report(self._folder)
         finally:
             os.environ.pop(PARENT_ENV, None)
+            if failed and self._parent_id is not None:
+                import mlflow
+
+                mlflow.end_run("FAILED")
             self._stack.close()
             self._parent_id = None
 
