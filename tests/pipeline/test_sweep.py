@@ -26,7 +26,7 @@ def test_heatmap_table_and_report(tmp_path):
     assert plot_sweep(points, keys, "mota", tmp_path / "h.png") and (tmp_path / "h.png").stat().st_size > 0
     assert not plot_sweep(points, [], "mota", tmp_path / "none.png")
     table = sweep_table(points, keys, ["mota"])
-    assert table.splitlines()[2] == "| 0.1 | 0.3 | 0.4000 |"
+    assert table.splitlines()[2] == "| 0.1 | 0.3 | 0.4 |"
     callback = SweepCallback(metric="mota")
     callback.points = points
     callback._report(tmp_path / "sweep")

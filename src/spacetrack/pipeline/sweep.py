@@ -43,6 +43,10 @@ def _number(text: str) -> float | str:
         return text
 
 
+def _label(value: float | str) -> str:
+    return str(int(value)) if isinstance(value, float) and value.is_integer() else str(value)
+
+
 def _sorted(values: set) -> list:
     try:
         return sorted(values)
@@ -75,8 +79,8 @@ def plot_sweep(points: list[dict], keys: list[str], metric: str, path: Path) -> 
         image = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
         for (i, j), v in np.ndenumerate(grid):
             ax.text(j, i, f"{v:.3f}", ha="center", va="center", color="w", fontsize=9)
-        ax.set_xticks(range(len(xs)), [str(x) for x in xs])
-        ax.set_yticks(range(len(ys)), [str(y) for y in ys])
+        ax.set_xticks(range(len(xs)), [_label(x) for x in xs])
+        ax.set_yticks(range(len(ys)), [_label(y) for y in ys])
         ax.set_xlabel(keys[0])
         ax.set_ylabel(keys[1])
         fig.colorbar(image, ax=ax, label=metric)
@@ -93,7 +97,7 @@ def sweep_table(points: list[dict], keys: list[str], metrics: list[str]) -> str:
         "| "
         + " | ".join(
             [str(p["overrides"][k]) for k in keys]
-            + [f"{p['metrics'].get(m, float('nan')):.4f}" for m in metrics]
+            + [f"{p['metrics'].get(m, float('nan')):.4g}" for m in metrics]
         )
         + " |\n"
         for p in points
