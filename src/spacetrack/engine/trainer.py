@@ -129,44 +129,19 @@ class Trainer:
                 num_workers=self.workers,
                 collate_fn=collate,
             )
-            target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
-            model.train()
-            optimizer.zero_grad()
-            sums, seen, started = torch.zeros(3), 0, time.perf_counter()
-            for i, (images, targets) in enumerate(loader):
-                iteration = i + num_batches * epoch
-                set_learning_rates(
-                    optimizer,
-                    iteration=iteration,
-                    warmup_iterations=warmup_iterations,
-                    target_lr=target_lr,
-                    momentum=self.momentum,
-                    warmup_momentum=self.warmup_momentum,
-                    warmup_bias_lr=self.warmup_bias_lr,
-                )
-                with torch.autocast(device.type, enabled=scaler.is_enabled()):
-                    raw = model(images.to(device).float() / 255)
-                loss, components = loss_fn([p.float() for p in raw], targets.to(device))
-                if not torch.isfinite(loss):
-                    kept = (
-                        f"{weights / 'last.pt'} (epoch {epoch - 1}) is kept" if epoch else "no checkpoint yet"
-                    )
-                    raise FloatingPointError(
-                        f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped, {kept}. Lower "
-                        "train.trainer.lr0 or check the labels."
-                    )
-                scaler.scale(loss).backward()
-                if (i + 1) % accumulate == 0 or i + 1 == num_batches:
-                    scaler.unscale_(optimizer)
-                    nn.utils.clip_grad_norm_(model.parameters(), max_norm=self.grad_clip)
-                    scaler.step(optimizer)
-                    scaler.update()
-                    optimizer.zero_grad()
-                    ema.update(model)
-                sums += components.cpu() * len(images)
-                seen += len(images)
-            train_seconds = time.perf_counter() - started
-
+            components, images_per_s = self._train_epoch(
+                model=model,
+                loss_fn=loss_fn,
+                loader=loader,
+                optimizer=optimizer,
+                scaler=scaler,
+                ema=ema,
+                epoch=epoch,
+                first_iteration=num_batches * epoch,
+                warmup_iterations=warmup_iterations,
+                accumulate=accumulate,
+                last_checkpoint=weights / "last.pt",
+            )
             metrics, details = evaluate(
                 ema.module,
                 val_loader,
@@ -178,11 +153,11 @@ class Trainer:
             )
             record = {
                 "epoch": epoch,
-                **dict(zip(("box", "obj", "cls"), (sums / seen).tolist(), strict=True)),
+                **dict(zip(("box", "obj", "cls"), components, strict=True)),
                 **metrics,
                 "fitness": fitness(metrics),
                 "lr": optimizer.param_groups[1]["lr"],
-                "train_images_per_s": seen / train_seconds,
+                "train_images_per_s": images_per_s,
             }
             history.append(record)
             is_best = record["fitness"] > best
@@ -210,3 +185,56 @@ class Trainer:
             "best": weights / "best.pt",
             "last": weights / "last.pt",
         }
+
+    def _train_epoch(
+        self,
+        *,
+        model: nn.Module,
+        loss_fn: Callable,
+        loader: DataLoader,
+        optimizer: torch.optim.Optimizer,
+        scaler: torch.amp.GradScaler,
+        ema: ModelEMA,
+        epoch: int,
+        first_iteration: int,
+        warmup_iterations: int,
+        accumulate: int,
+        last_checkpoint: Path,
+    ) -> tuple[list[float], float]:
+        """One pass over `loader`: mean [box, obj, cls] loss per image, and training images per second."""
+        device = next(model.parameters()).device
+        target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
+        model.train()
+        optimizer.zero_grad()
+        sums, seen, started = torch.zeros(3), 0, time.perf_counter()
+        for i, (images, targets) in enumerate(loader):
+            iteration = first_iteration + i
+            set_learning_rates(
+                optimizer,
+                iteration=iteration,
+                warmup_iterations=warmup_iterations,
+                target_lr=target_lr,
+                momentum=self.momentum,
+                warmup_momentum=self.warmup_momentum,
+                warmup_bias_lr=self.warmup_bias_lr,
+            )
+            with torch.autocast(device.type, enabled=scaler.is_enabled()):
+                raw = model(images.to(device).float() / 255)
+            loss, components = loss_fn([p.float() for p in raw], targets.to(device))
+            if not torch.isfinite(loss):
+                kept = f"{last_checkpoint} (epoch {epoch - 1}) is kept" if epoch else "no checkpoint yet"
+                raise FloatingPointError(
+                    f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped, {kept}. Lower "
+                    "train.trainer.lr0 or check the labels."
+                )
+            scaler.scale(loss).backward()
+            if (i + 1) % accumulate == 0 or i + 1 == len(loader):
+                scaler.unscale_(optimizer)
+                nn.utils.clip_grad_norm_(model.parameters(), max_norm=self.grad_clip)
+                scaler.step(optimizer)
+                scaler.update()
+                optimizer.zero_grad()
+                ema.update(model)
+            sums += components.cpu() * len(images)
+            seen += len(images)
+        return (sums / seen).tolist(), seen / (time.perf_counter() - started)
