@@ -11,12 +11,14 @@ from spacetrack.pipeline.stages import DetectionStream, detection_rows
 
 
 class OneBoxDetector:
-    """A box at x = 10 * frame in every frame."""
+    """A box at x = 10 * frame in every frame but the fifth, which has none."""
 
     def begin(self, source):
         pass
 
     def __call__(self, rgb, frame):
+        if frame == 5:
+            return np.zeros((0, 6))
         return np.array([[10.0 * frame, 5, 4, 4, 0.9, 1]])
 
 
@@ -48,15 +50,16 @@ def test_detections_are_paired_with_the_blobs_of_their_own_frame():
     stream = DetectionStream(
         enhancer=lambda rgb: rgb,
         detector=OneBoxDetector(),
-        encoder=lambda rgb, boxes: np.ones((len(boxes), 3)),
+        encoder=lambda rgb, boxes: np.ones((len(boxes), 3)),  # like the Encoder: (0, D) for no box
         motion=LaggingMotion(),
         dynamic_filter=DynamicFilter(min_overlap=0.5, max_distance=0.0),
     )
     out = list(stream.run(_source(6), keep_images=True))
     assert [f.frame for f in out] == [1, 2, 3, 4, 5, 6]
     # Frames 1-4 get masks of their own frame (1 and 2 wait for frame 3's, whose blob is elsewhere);
-    # 5 and 6 never get one and take frame 4's blob, which is elsewhere too.
-    assert [bool(f.dynamic[0]) for f in out] == [False, False, True, True, False, False]
+    # 5 (no detection at all) and 6 never get one and take frame 4's blob, which is elsewhere too.
+    assert [f.dynamic.tolist() for f in out] == [[False], [False], [True], [True], [], [False]]
+    assert out[4].rows.shape == (0, 13)
     assert out[0].rows.shape == (1, 13) and out[0].image.shape == (20, 100, 3)
     assert out[3].classes.tolist() == [1] and stream.latency == 2
 

@@ -36,12 +36,13 @@ class FrameDetections:
 
 
 def detection_rows(frame: int, boxes: np.ndarray, features: np.ndarray) -> np.ndarray:
-    """(N, 10 + D) rows `frame,-1,x,y,w,h,score,-1,-1,-1,feature` from (N, >=5) `x,y,w,h,score` boxes."""
+    """(N, 10 + D) rows `frame,-1,x,y,w,h,score,-1,-1,-1,feature` from (N, >=5) `x,y,w,h,score` boxes and
+    (N, D) features (N may be 0)."""
     n = len(boxes)
     head = np.full((n, HEAD_COLUMNS), -1.0)
     head[:, 0] = frame
     head[:, 2:7] = boxes[:, :5]
-    return np.hstack([head, np.asarray(features, dtype=np.float64).reshape(n, -1)])
+    return np.hstack([head, np.asarray(features, dtype=np.float64)])
 
 
 class DetectionStream:
