@@ -29,6 +29,7 @@ from spacetrack.config import compose_config
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import DetectionStream, GroundTruthDetector, StageTimer, YoloDetector
+from spacetrack.pipeline.detector import resolve_device
 from spacetrack.pipeline.runner import cached_frames
 from spacetrack.pipeline.sources import FrameSource, sequence_source
 from spacetrack.reid import Encoder
@@ -93,6 +94,7 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest on a crowded machine)"
     )
+    parser.add_argument("--device", default="auto", help="auto (CUDA when present), cpu or cuda")
     parser.add_argument("--detector-weights", default=None, help="a trained best.pt (default: random init)")
     parser.add_argument("--reid-weights", default=None, help="a trained reid.pt (default: random init)")
     args = parser.parse_args()
@@ -104,11 +106,12 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp())
     det_weights, reid_weights = random_weights(tmp)
     det_weights = Path(args.detector_weights or det_weights)
-    encoder = Encoder.from_weights(args.reid_weights or reid_weights, device="cpu")
+    device = resolve_device(args.device)
+    encoder = Encoder.from_weights(args.reid_weights or reid_weights, device=device)
     truth = GroundTruthDetector(root=args.dataset)
 
     def stream(size: int, enhance: str) -> DetectionStream:
-        network = YoloDetector(weights=det_weights, image_size=size, device="cpu")
+        network = YoloDetector(weights=det_weights, image_size=size, device=str(device))
         detector = network if args.detector_weights else TimedNetworkTruthBoxes(network, truth)
         enhancer = instantiate(compose_config("track", [f"enhance={enhance}", "logger=none"]).enhance)
         return DetectionStream(
@@ -149,7 +152,7 @@ def main() -> None:
             )
         cache_samples.append((time.perf_counter() - start) / len(frames))
     peer = statistics.median(samples["detector 640 (peer)"])
-    record = {"load_average_1_5_15min": list(os.getloadavg()), "frames": len(frames), "size": [width, height], "rounds": args.rounds, "threads": args.threads,
+    record = {"device": device.type, "load_average_1_5_15min": list(os.getloadavg()), "frames": len(frames), "size": [width, height], "rounds": args.rounds, "threads": args.threads,
               "detector_weights": "trained" if args.detector_weights else "random init, ground-truth boxes passed on",
               "contenders": {}}  # fmt: skip
     table = []
@@ -180,7 +183,7 @@ def main() -> None:
         "tracker",
     ]
     md = (
-        f"# Whole pipeline per {width}x{height} frame (CPU, {args.threads} torch threads)\n\n"
+        f"# Whole pipeline per {width}x{height} frame ({device.type.upper()}, {args.threads} torch threads)\n\n"
         f"{len(frames)} frames of {args.sequence}, {args.rounds} interleaved rounds, medians; stage columns in ms"
         f" per frame. Detector: {record['detector_weights']}. Load average during the run:"
         f" {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (a machine shared with other jobs).\n\n"
