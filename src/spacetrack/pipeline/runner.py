@@ -18,7 +18,7 @@ from tqdm import tqdm
 from spacetrack.pipeline.cache import CacheKey, DetectionCache
 from spacetrack.pipeline.outputs import Annotator
 from spacetrack.pipeline.sources import FrameSource
-from spacetrack.pipeline.stages import FrameDetections
+from spacetrack.pipeline.stages import DetectionStream, FrameDetections
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.tracking import DeepSort
 from spacetrack.tracking.io import write_mot_results
@@ -62,7 +62,7 @@ def run_source(
     source: FrameSource,
     *,
     tracker: DeepSort,
-    make_stream: Callable[[], object],
+    make_stream: Callable[[], DetectionStream],
     cache: DetectionCache | None,
     key: CacheKey,
     use_filter: bool,
