@@ -8,7 +8,7 @@ depend on their values):
 - `crops_only` / `opencv_crops_only`: the two crop paths without the network;
 - `network_only`: the network on ready crops, so users see where the time goes.
 
-    python benchmarks/bench_reid.py [--repeats 20] [--device cpu|cuda]
+    python benchmarks/bench_reid.py [--repeats 20] [--device cpu|cuda] [--threads 1]
 """
 
 from __future__ import annotations
@@ -55,7 +55,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     device = torch.device(args.device)
     torch.manual_seed(0)
     cropper = Cropper()
@@ -94,6 +97,7 @@ def main() -> None:
     record = {
         "what": "re-ID encoder, 640x480 RGB frame, tlwh boxes 10-120 px -> 128-d unit features (ms)",
         "device": str(device),
+        "torch_threads": torch.get_num_threads(),
         "repeats": args.repeats,
         "results": results,
     }

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from spacetrack.reid import Cropper, Encoder, ReidNet
+from spacetrack.reid.crops import frame_tensor
 from spacetrack.reid.weights import save_weights
 
 NET = {"input_height": 128, "input_width": 64, "feature_dim": 128, "dropout": 0.3, "final_elu": False}
@@ -42,6 +43,10 @@ def test_features_are_unit_float32_and_deterministic(weights, frame) -> None:
     single = Encoder.from_weights(weights, device="cpu", batch_size=1)(frame, boxes)
     np.testing.assert_allclose(single, features, atol=1e-5)
     assert not np.allclose(features[0], features[1])
+    # the encoder converts only the sampled part of the frame: the same features as from the whole frame
+    whole = encoder.encode_crops(encoder.cropper(frame_tensor(frame), boxes[inside]))
+    np.testing.assert_allclose(features[inside], whole, atol=1e-5)
+    np.testing.assert_allclose(encoder(frame, boxes[1:2]), features[1:2], atol=1e-5)  # a part away from 0, 0
 
 
 def test_empty_box_list(weights, frame) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from spacetrack.reid.crops import Cropper, check_boxes, frame_tensor
+from spacetrack.reid.crops import Cropper, check_boxes, check_frame, frame_tensor
 from spacetrack.reid.network import ReidNet
 
 WEIGHTS_ARTIFACT = "weights/reid.pt"
@@ -75,7 +75,7 @@ class Encoder:
     def __call__(self, frame_rgb: np.ndarray, boxes_tlwh: np.ndarray | list) -> np.ndarray:
         """Features of the boxes (`tlwh`, pixels) in the RGB uint8 (H, W, 3) frame, (N, feature_dim) float32."""
         boxes = check_boxes(boxes_tlwh)
-        frame = frame_tensor(frame_rgb, self.device)
+        check_frame(frame_rgb)
         height, width = frame_rgb.shape[:2]
         seen = np.flatnonzero(
             (boxes[:, 0] < width)
@@ -84,9 +84,19 @@ class Encoder:
             & (boxes[:, 1] + boxes[:, 3] > 0)
         )
         out = np.zeros((len(boxes), self.feature_dim), dtype=np.float32)
+        if not len(seen):
+            return out
+        # Only the part of the frame the crops sample (one pixel more for bilinear neighbours) is converted
+        # to float: on the CPU converting a whole 640x480 frame costs more than cutting a few crops.
+        regions = self.cropper.sampling_boxes(boxes[seen])
+        x0, y0 = (max(int(np.floor(regions[:, i].min())) - 1, 0) for i in (0, 1))
+        x1 = min(int(np.ceil(regions[:, 2].max())) + 1, width)
+        y1 = min(int(np.ceil(regions[:, 3].max())) + 1, height)
+        frame = frame_tensor(frame_rgb[y0:y1, x0:x1], self.device)
+        shifted = boxes - np.array([x0, y0, 0.0, 0.0])
         for start in range(0, len(seen), self.batch_size):
             rows = seen[start : start + self.batch_size]
-            out[rows] = self.net(self.cropper(frame, boxes[rows])).float().cpu().numpy()
+            out[rows] = self.net(self.cropper(frame, shifted[rows])).float().cpu().numpy()
         return out
 
     @torch.no_grad()
