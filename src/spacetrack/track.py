@@ -12,6 +12,7 @@ import logging
 from pathlib import Path
 
 import hydra
+import torch
 from omegaconf import DictConfig
 
 from spacetrack.config import CONF_DIR
@@ -84,6 +85,8 @@ def run(cfg: DictConfig) -> dict[str, float]:
 
     def make_stream():
         if not built:  # the networks load once, and only if some source is not cached
+            if cfg.threads:
+                torch.set_num_threads(int(cfg.threads))
             built.append(build_stream(cfg, weights, StageTimer()))
         built[0].timer = StageTimer()
         return built[0]
