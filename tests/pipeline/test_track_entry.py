@@ -34,15 +34,15 @@ def test_pipeline_writes_results_video_metrics_and_cache(smoke_dataset, random_r
     cfg = track_config(
         smoke_dataset, tmp_path, "detector=ground_truth", f"reid.weights={random_reid}",
         "tracker=deepsort_original", "tracker.max_cosine_distance=1.0", f"sequence={STATIC_SEQ}",
-        "max_frames=30",
+        "max_frames=16",
     )  # fmt: skip
     metrics = track.run(cfg)
     out = tmp_path / "out"
     rows = np.loadtxt(out / f"{STATIC_SEQ}.txt", delimiter=",", ndmin=2)
     assert rows.shape[1] == 10 and set(rows[:, 6]) == {1} and set(rows[:, 7:].ravel()) == {-1}
-    assert rows[:, 0].max() <= 30 and (out / f"{STATIC_SEQ}.mp4").stat().st_size > 0
+    assert rows[:, 0].max() <= 16 and (out / f"{STATIC_SEQ}.mp4").stat().st_size > 0
     assert json.loads((out / "metrics.json").read_text())["mota"] == metrics["mota"]
-    assert metrics["mota"] > 0.5 and metrics["num_frames"] == 30 and metrics["cached_sequences"] == 0
+    assert metrics["mota"] > 0.5 and metrics["num_frames"] == 16 and metrics["cached_sequences"] == 0
     assert {"detector_ms", "reid_ms", "motion_ms", "tracker_ms"} <= set(metrics)
     # The filter keeps the parked satellite away from the tracker.
     assert _static_overlap(out / f"{STATIC_SEQ}.txt", smoke_dataset / STATIC_SEQ / "gt" / "static.txt") == 0
