@@ -114,6 +114,7 @@ def write_tables(num_folds: int = 9) -> list[Path]:
         "",
         "Regenerate with `make table4` (= `python experiments/table4_mota/run.py`); each cell is one",
         "fold's sequences tracked with that fold's own models (never trained on them). `-`: not run yet.",
+        "What each row's models were, and why some cells are missing, is in README.md.",
         "",
         "| row | "
         + " | ".join(f"fold {k}" for k in range(num_folds))
