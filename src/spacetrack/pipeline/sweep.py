@@ -9,10 +9,7 @@ into the sweep folder, logs them on the parent with the best point and the mean 
 
 from __future__ import annotations
 
-import atexit
 import json
-import os
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -20,13 +17,13 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import mlflow  # noqa: E402
 import numpy as np  # noqa: E402
 from hydra.core.utils import JobReturn, JobStatus  # noqa: E402
-from hydra.experimental.callback import Callback  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
 
 from spacetrack.io import atomic_write_text  # noqa: E402
-from spacetrack.mlflow_log import start_run  # noqa: E402
+from spacetrack.multirun import MultirunParent  # noqa: E402
 
 PARENT_ENV = "SPACETRACK_SWEEP_PARENT_RUN_ID"
 
@@ -105,34 +102,22 @@ def sweep_table(points: list[dict], keys: list[str], metrics: list[str]) -> str:
     return head + body
 
 
-class SweepCallback(Callback):
+class SweepCallback(MultirunParent):
     """metric: the score the heatmap shows and the best point maximises (a key of metrics.json)."""
 
+    env_var = PARENT_ENV
+    run_name = "sweep"
+    tags = {"sweep": "parent"}
+
     def __init__(self, *, metric: str = "mota") -> None:
+        super().__init__()
         self.metric = metric
         self.points: list[dict[str, Any]] = []
-        self._stack = ExitStack()
-        self._parent_id: str | None = None
         self._folder = Path(".")
 
-    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+    def start(self, config: DictConfig) -> None:
         self.points = []
         self._folder = Path(config.hydra.sweep.dir)
-        # Hydra skips on_multirun_end when a job fails: close the parent and report the finished points
-        # at exit instead, so a failed point never leaves the parent run open.
-        atexit.register(self._finish, failed=True)
-        if not config.logger.enabled:
-            return
-        summary = OmegaConf.create(
-            {
-                "task_name": config.task_name,
-                "logger": OmegaConf.to_container(config.logger, resolve=True),
-                "sweep": list(config.hydra.overrides.task),
-            }
-        )
-        run = self._stack.enter_context(start_run(summary, run_name="sweep", tags={"sweep": "parent"}))
-        self._parent_id = run.info.run_id
-        os.environ[PARENT_ENV] = self._parent_id
 
     def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
         if job_return.status != JobStatus.COMPLETED:
@@ -145,22 +130,10 @@ class SweepCallback(Callback):
         )
         self.points.append({"overrides": overrides, "metrics": metrics, "output_dir": str(out_dir)})
 
-    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        self._finish(failed=False)
-
-    def _finish(self, *, failed: bool) -> None:
-        atexit.unregister(self._finish)
-        try:
-            if self.points:
-                self._report(self._folder)
-        finally:
-            os.environ.pop(PARENT_ENV, None)
-            if failed and self._parent_id is not None:
-                import mlflow
-
-                mlflow.end_run("FAILED")
-            self._stack.close()
-            self._parent_id = None
+    def finish(self, *, failed: bool) -> None:
+        # the points that finished are reported even when another point failed
+        if self.points:
+            self._report(self._folder)
 
     def _report(self, folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)
@@ -181,15 +154,13 @@ class SweepCallback(Callback):
         artifacts = [folder / "sweep.json", folder / "sweep.md"]
         if plot_sweep(self.points, keys, self.metric, folder / "heatmap.png"):
             artifacts.append(folder / "heatmap.png")
-        if self._parent_id is not None:
-            import mlflow
-
+        if self.parent_id is not None:
             client = mlflow.MlflowClient()
             for key in (f"{self.metric}_mean", f"{self.metric}_std"):
                 if np.isfinite(record[key]):
-                    client.log_metric(self._parent_id, key, record[key])
+                    client.log_metric(self.parent_id, key, record[key])
             if best is not None:
                 for k, v in best["overrides"].items():
-                    client.log_param(self._parent_id, f"best.{k}", v)
+                    client.log_param(self.parent_id, f"best.{k}", v)
             for path in artifacts:
-                client.log_artifact(self._parent_id, str(path), "sweep")
+                client.log_artifact(self.parent_id, str(path), "sweep")
