@@ -75,7 +75,9 @@ def run(cfg: DictConfig) -> dict[str, float]:
     sheet = demo_dir / "contact_sheet.jpg"
     shutil.copyfile(root / "contact_sheet.jpg", sheet)
     shutil.copyfile(root / "CARD.md", demo_dir / "CARD.md")
-    seq = next((s for s in manifest["sequences"] if s["scenario"] == cfg.clip_scenario), manifest["sequences"][0])
+    seq = next(
+        (s for s in manifest["sequences"] if s["scenario"] == cfg.clip_scenario), manifest["sequences"][0]
+    )
     clip = demo_dir / f"{seq['name']}_ground_truth.mp4"
     frames = write_clip(root, seq, clip)
     with start_run(cfg, run_name="demo") as active:
