@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 ARGS ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs
+.PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
 .PHONY: track-detections evaluate bench-tracker
 .PHONY: train cv bench-detector
 .PHONY: eval-motion bench-motion
@@ -73,7 +73,12 @@ $(DEFAULT_DATA)/manifest.json: | $(STAMP)
 train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on FOLD (default 3), train on the rest; ARGS="model=yolov5s_gam enhance=dwt_hsv"
 	$(PY) -m spacetrack.train fold=$(FOLD) $(ARGS)
 
-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the detector (Hydra multirun, one MLflow parent run)
+cv: ## the whole nine-fold study: cv-detector, cv-reid, then track-cv (DETECTOR_ARGS, REID_ARGS, TRACK_ARGS)
+	$(MAKE) cv-detector ARGS="$(DETECTOR_ARGS)"
+	$(MAKE) cv-reid ARGS="$(REID_ARGS)"
+	$(MAKE) track-cv ARGS="$(TRACK_ARGS)"
+
+cv-detector: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the detector (Hydra multirun, one MLflow parent run)
 	$(PY) -m spacetrack.train -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
 
 bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 and training images/s -> reports/detector.json
