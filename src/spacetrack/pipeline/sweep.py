@@ -10,6 +10,7 @@ into the sweep folder, logs them on the parent with the best point and the mean 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -128,7 +129,10 @@ class SweepCallback(MultirunParent):
         overrides = dict(
             o.split("=", 1) for o in job_return.overrides if "=" in o and not o.startswith("+sweep")
         )
-        self.points.append({"overrides": overrides, "metrics": metrics, "output_dir": str(out_dir)})
+        # relative to the working directory, so a committed sweep.json names no path of this machine
+        self.points.append(
+            {"overrides": overrides, "metrics": metrics, "output_dir": os.path.relpath(out_dir)}
+        )
 
     def finish(self, *, failed: bool) -> None:
         # the points that finished are reported even when another point failed
