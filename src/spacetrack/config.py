@@ -16,8 +16,15 @@ def resolved_dict(cfg: DictConfig) -> dict:
 
 
 def compose_config(config_name: str, overrides: list[str] | None = None) -> DictConfig:
-    """The root config `config_name` from conf/ with command-line style `overrides` (for notebooks and tests)."""
-    from hydra import compose, initialize_config_dir
+    """The root config `config_name` from conf/ with command-line style `overrides`.
 
+    For notebooks, tests and one entry point calling another: inside a running `@hydra.main` app (whose
+    configs are conf/ too) it composes with that app's Hydra instead of starting a second one.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    if GlobalHydra.instance().is_initialized():
+        return compose(config_name, overrides=overrides or [])
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return compose(config_name, overrides=overrides or [])

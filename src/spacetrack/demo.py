@@ -16,8 +16,8 @@ import mlflow
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from spacetrack import build_data
-from spacetrack.config import CONF_DIR
+from spacetrack import build_data, track
+from spacetrack.config import CONF_DIR, compose_config
 from spacetrack.data.layout import MANIFEST, frame_name, frame_paths, load_manifest, read_mot
 from spacetrack.mlflow_log import start_run
 from spacetrack.viz.draw import draw_boxes, draw_trails
@@ -65,6 +65,24 @@ def write_clip(root: Path, seq: dict, path: Path) -> int:
     return len(frames)
 
 
+def track_sequence(cfg: DictConfig, seq: dict, out_dir: Path) -> dict[str, float]:
+    """The whole pipeline (detector, re-ID, motion fusion, DeepSORT) on one sequence of the demo data."""
+    overrides = [
+        f"data_root={cfg.data_root}",
+        f"sequence={seq['name']}",
+        f"detector.weights={cfg.track.detector_weights}",
+        f"reid.weights={cfg.track.reid_weights}",
+        f"tracker={cfg.track.tracker}",
+        f"output_dir={out_dir}",
+        f"progress={cfg.progress}",
+        "logger=mlflow" if cfg.logger.enabled else "logger=none",
+        "logger.experiment=demo",
+    ]
+    track_cfg = compose_config("track", overrides)
+    track_cfg.data = cfg.data  # the demo's dataset, whatever data config built it
+    return track.run(track_cfg)
+
+
 def run(cfg: DictConfig) -> dict[str, float]:
     if not dataset_is_current(cfg):
         build_data.run(OmegaConf.merge(cfg, {"overwrite": True}))
@@ -87,7 +105,15 @@ def run(cfg: DictConfig) -> dict[str, float]:
     print(f"dataset: {root} ({len(manifest['sequences'])} sequences, card {root / 'CARD.md'})")
     print(f"contact sheet: {sheet}")
     print(f"clip: {clip} ({frames} frames, left: frame and ground truth, right: motion mask)")
-    return {"sequences": float(len(manifest["sequences"])), "clip_frames": float(frames)}
+    result = {"sequences": float(len(manifest["sequences"])), "clip_frames": float(frames)}
+    if cfg.track.enabled:
+        scores = track_sequence(cfg, seq, demo_dir / "track")
+        print(
+            f"tracked: {demo_dir / 'track'} ({seq['name']}.txt, .mp4, metrics.json): "
+            + ", ".join(f"{k}={v:.3f}" for k, v in scores.items() if k in ("mota", "idf1", "idsw", "fps"))
+        )
+        result.update(scores)
+    return result
 
 
 @hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="demo")
