@@ -12,7 +12,8 @@ from hydra.errors import MissingConfigException
 
 from spacetrack import build_data
 from spacetrack.config import compose_config
-from spacetrack.data.layout import frame_paths, load_manifest, read_mot, read_yolo_labels, split_sequences
+from spacetrack.data.layout import frame_paths, load_manifest, read_mot, split_sequences
+from spacetrack.data.yolo_dataset import read_labels
 
 
 def _tiny(root, *extra):
@@ -69,7 +70,7 @@ def test_mot_and_yolo_boxes_are_identical(smoke_dataset):
         rows = np.concatenate([read_mot(d / "gt" / "gt.txt"), read_mot(d / "gt" / "static.txt")])
         for frame in range(1, seq["num_frames"] + 1):
             visible = rows[(rows[:, 0] == frame) & (rows[:, 8] > 0)]
-            labels = read_yolo_labels(d / "labels" / f"{frame:06d}.txt")
+            labels = read_labels(d / "labels" / f"{frame:06d}.txt", num_classes=3).astype(float)
             boxes = (
                 np.stack(
                     [

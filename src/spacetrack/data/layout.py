@@ -14,6 +14,7 @@ import numpy as np
 MANIFEST = "manifest.json"
 FORMAT_VERSION = 1
 MOT_COLUMNS = ("frame", "id", "x", "y", "w", "h", "conf", "class", "visibility")
+_MOT_DEFAULTS = np.array([np.nan] * 6 + [1.0, -1.0, -1.0])  # conf, class, visibility when absent
 
 
 def frame_name(frame: int, ext: str) -> str:
@@ -58,27 +59,33 @@ def frame_paths(root: str | Path, seq: str, image_dir: str = "img") -> list[Path
 
 
 def read_mot(path: str | Path) -> np.ndarray:
-    """MOT rows `frame,id,x,y,w,h,conf,class,visibility` as an (N, 9) float64 array (N may be 0)."""
+    """MOT rows of `path` as an (N, 9) float64 array `frame,id,x,y,w,h,conf,class,visibility`.
+
+    Reads ground truth and tracker results alike: 6 to 10 comma- or space-separated columns (the MOT15
+    results layout has 10, the tenth is ignored); missing columns get conf 1, class -1, visibility -1
+    (unknown). An empty file is zero rows. Raises ValueError naming the file, line and value for a line
+    that is not numeric, has fewer than six columns, or holds NaN or infinite values.
+    """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path} not found")
-    text = path.read_text().strip()
-    if not text:
-        return np.zeros((0, len(MOT_COLUMNS)))
-    rows = np.loadtxt(path, delimiter=",", ndmin=2)
-    if rows.shape[1] != len(MOT_COLUMNS):
-        raise ValueError(
-            f"{path}: {rows.shape[1]} columns, expected {len(MOT_COLUMNS)} ({','.join(MOT_COLUMNS)})"
-        )
-    return rows
-
-
-def read_yolo_labels(path: str | Path) -> np.ndarray:
-    """YOLO rows `class cx cy w h` (normalised) as an (N, 5) float64 array; a missing file means no target."""
-    path = Path(path)
-    if not path.is_file() or not path.read_text().strip():
-        return np.zeros((0, 5))
-    rows = np.loadtxt(path, ndmin=2)
-    if rows.shape[1] != 5:
-        raise ValueError(f"{path}: {rows.shape[1]} columns, expected 5 (class cx cy w h)")
-    return rows
+        raise FileNotFoundError(f"MOT file {path} not found")
+    rows = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        fields = line.replace(",", " ").split()
+        try:
+            values = [float(v) for v in fields]
+        except ValueError:
+            raise ValueError(f"{path}: line {number} is not numeric: {line!r}") from None
+        if not 6 <= len(values) <= 10:
+            raise ValueError(
+                f"{path}: line {number} has {len(values)} columns; expected 6 to 10 "
+                f"({','.join(MOT_COLUMNS)}): {line!r}"
+            )
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"{path}: line {number} holds a NaN or infinite value: {line!r}")
+        row = _MOT_DEFAULTS.copy()
+        row[: min(len(values), 9)] = values[:9]
+        rows.append(row)
+    return np.array(rows) if rows else np.zeros((0, len(MOT_COLUMNS)))
