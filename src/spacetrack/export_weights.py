@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 from spacetrack.engine.checkpoint import load_checkpoint
-from spacetrack.io import atomic_path
+from spacetrack.io import atomic_path, load_torch_file
 from spacetrack.reid.weights import load_weights
 
 
@@ -35,7 +35,7 @@ def export_detector(src: str | Path, dst: str | Path) -> Path:
 
 def export_reid(src: str | Path, dst: str | Path) -> Path:
     load_weights(src)  # refuse a file that is not re-ID weights before writing anything
-    state = torch.load(src, map_location="cpu", weights_only=True)
+    state = load_torch_file(src, "weights file")
     state["model"] = _half(state["model"])
     with atomic_path(dst) as tmp:
         torch.save(state, tmp)

@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-from spacetrack.io import atomic_path
+from spacetrack.io import atomic_path, load_torch_file
 from spacetrack.models.yolo import YOLOv5
 
 
@@ -35,13 +35,7 @@ def differences(found: dict[str, Any], expected: dict[str, Any], ignore: tuple[s
 
 def load_checkpoint(path: str | Path, *, arch: dict[str, Any] | None = None) -> dict[str, Any]:
     """Read a checkpoint (on the CPU); with `arch`, refuse one made for a different architecture."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} not found")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:
-        raise ValueError(f"{path} is not a readable checkpoint: {err}") from err
+    state = load_torch_file(path, "checkpoint")
     if not isinstance(state, dict) or "arch" not in state or "ema" not in state:
         raise ValueError(f"{path} is not a spacetrack detector checkpoint (no 'arch' and 'ema' entries)")
     if arch is not None and differences(state["arch"], arch):

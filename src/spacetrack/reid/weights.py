@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 
-from spacetrack.io import atomic_path
+from spacetrack.io import atomic_path, load_torch_file
 from spacetrack.reid.crops import Cropper
 from spacetrack.reid.network import ReidNet
 
@@ -27,13 +27,7 @@ def save_weights(
 def load_weights(path: str | Path) -> tuple[ReidNet, Cropper]:
     """The network (eval mode, on the CPU) and cropper stored at `path`; a file of another format or
     whose tensors do not fit the stored architecture is a ValueError naming the file and the tensors."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"re-ID weights {path} not found")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:
-        raise ValueError(f"{path} is not a readable weights file: {err}") from err
+    state = load_torch_file(path, "weights file")
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise ValueError(f"{path} is not a spacetrack re-ID weights file (expected format {FORMAT!r})")
     net = ReidNet(**state["net"])
