@@ -165,10 +165,17 @@ def markdown(results: dict[str, dict[str, dict[str, float]]], methods: list[str]
             "| scenario | " + " | ".join(methods) + " |",
             "|" + "---|" * (len(methods) + 1),
         ]
+        # pixel F1 gets the ceiling of a mask of the visible truth pixels (the same for every method)
+        ceiling = metric == "pixel_f1"
+        if ceiling:
+            lines[2] += " visible ceiling |"
+            lines[3] += "---|"
         for label, by_method in results.items():
             values = [by_method[m][metric] for m in methods]
             best = max((v for v in values if v == v), default=None)
             cells = ["-" if v != v else f"**{v:.3f}**" if v == best else f"{v:.3f}" for v in values]
+            if ceiling:
+                cells.append(f"{by_method[methods[0]]['pixel_f1_ceiling']:.3f}")
             lines.append(f"| {label} | " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"

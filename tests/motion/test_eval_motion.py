@@ -61,7 +61,12 @@ def test_scores_every_method_per_scenario_and_writes_the_report(dataset, tmp_pat
     assert record["results"]["nominal"]["fusion"]["static_rejection"] is None  # no static object
     assert record["scored_with_compensation"] == ["slew"]
     assert record["results"]["nominal"]["fusion"]["frames"] == 12 - 2 - 2
-    assert "| nominal |" in (out / "accuracy.md").read_text()
+    report = (out / "accuracy.md").read_text()
+    assert "| nominal |" in report
+    # the pixel F1 table ends in the visible ceiling, which every method's score of that row shares
+    ceiling = record["results"]["nominal"]["fusion"]["pixel_f1_ceiling"]
+    assert record["results"]["nominal"]["knn"]["pixel_f1_ceiling"] == ceiling
+    assert f"| {ceiling:.3f} |" in report.split("### pixel_f1")[1].split("###")[0]
     assert cv2.imread(str(out / "sheet_slew_gmc.jpg")) is not None
 
 

@@ -45,6 +45,11 @@ def test_dark_truth_pixels_are_left_out_of_the_lit_scores():
     assert (score.tp, score.fp, score.fn) == (12, 1, 4)
     assert (score.lit_tp, score.lit_fp, score.lit_fn) == (8, 1, 0)
     assert score.summary()["lit_f1"] == pytest.approx(16 / 17)
+    # 8 lit of 16 truth pixels: no mask of visible pixels scores a pixel F1 above 2*8 / (8 + 16)
+    assert score.summary()["pixel_f1_ceiling"] == pytest.approx(16 / 24)
+    exact = MotionScore()
+    exact.add_frame(np.where(dark, 0, truth).astype(np.uint8), truth, np.zeros((0, 4)), dark=dark)
+    assert exact.summary()["pixel_f1"] == pytest.approx(exact.summary()["pixel_f1_ceiling"])
 
 
 def test_empty_scores_are_zero_and_merge_adds():

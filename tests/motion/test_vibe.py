@@ -37,6 +37,20 @@ def test_target_that_stops_is_absorbed_into_the_background(scene, run):
     assert run(ViBe(absorb_after=0), frames)[149][stopped].all()
 
 
+def test_absorbing_every_frame_takes_a_stopped_target_in_min_matches_frames(scene, run):
+    frames, truth = scene(40, stop_at=3, size=6)
+    stopped = truth[3]
+    # foreground from frame 3, absorbed at its 10th frame (12), which writes a sample of its own and one
+    # into a neighbour (the same value inside the square): background by frame 14 at the latest
+    masks = run(ViBe(absorb_after=10, absorb_subsampling=1), frames)
+    assert all(masks[t][stopped].all() for t in range(3, 13))
+    assert not masks[14][stopped].any()
+    # at the default rate of 1/16 most of it is still foreground then
+    assert run(ViBe(absorb_after=10), frames)[14][stopped].mean() > 0.5
+    with pytest.raises(ValueError, match="absorb_subsampling"):
+        ViBe(absorb_subsampling=0)
+
+
 def test_static_star_and_flash_free_field(scene, run):
     frames, _ = scene(30, stars=((5, 5), (90, 60)), size=0)
     masks = run(ViBe(), frames)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
+import pytest
 
 from spacetrack.motion import DynamicFilter
 from spacetrack.motion.blobs import Blob
@@ -32,6 +35,9 @@ class LaggingMotion:
         self.count, self.mask_index, self.blobs = 0, -1, []
 
     def apply(self, frame):
+        self.thread = threading.current_thread().name
+        if not frame.any() and frame.shape[0] == 1:
+            raise ValueError("frame 1 px high")
         self.count += 1
         if self.count < 2 * self.latency + 1:
             return None
@@ -46,15 +52,20 @@ def _source(n: int) -> FrameSource:
     return FrameSource("fake", "fake frames", 10.0, n, frames)
 
 
-def test_detections_are_paired_with_the_blobs_of_their_own_frame():
+@pytest.mark.parametrize("overlap", [True, False])
+def test_detections_are_paired_with_the_blobs_of_their_own_frame(overlap):
+    motion = LaggingMotion()
     stream = DetectionStream(
         enhancer=lambda rgb: rgb,
         detector=OneBoxDetector(),
         encoder=lambda rgb, boxes: np.ones((len(boxes), 3)),  # like the Encoder: (0, D) for no box
-        motion=LaggingMotion(),
+        motion=motion,
         dynamic_filter=DynamicFilter(min_overlap=0.5, max_distance=0.0),
+        overlap_motion=overlap,
     )
     out = list(stream.run(_source(6), keep_images=True))
+    # overlapped, the motion stage runs beside the detector in its own thread; the answers are the same
+    assert (motion.thread == threading.current_thread().name) is not overlap
     assert [f.frame for f in out] == [1, 2, 3, 4, 5, 6]
     # Frames 1-4 get masks of their own frame (1 and 2 wait for frame 3's, whose blob is elsewhere);
     # 5 (no detection at all) and 6 never get one and take frame 4's blob, which is elsewhere too.
@@ -62,6 +73,19 @@ def test_detections_are_paired_with_the_blobs_of_their_own_frame():
     assert out[4].rows.shape == (0, 13)
     assert out[0].rows.shape == (1, 13) and out[0].image.shape == (20, 100, 3)
     assert out[3].classes.tolist() == [1] and stream.latency == 2
+
+
+def test_an_error_in_the_overlapped_motion_stage_reaches_the_caller():
+    stream = DetectionStream(
+        enhancer=lambda rgb: rgb,
+        detector=OneBoxDetector(),
+        encoder=None,
+        motion=LaggingMotion(),
+        dynamic_filter=DynamicFilter(),
+    )
+    bad = FrameSource("bad", "bad frames", 10.0, 2, iter([np.zeros((1, 4, 3), np.uint8)] * 2))
+    with pytest.raises(ValueError, match="1 px high"):
+        list(stream.run(bad))
 
 
 def test_without_motion_every_detection_is_dynamic():

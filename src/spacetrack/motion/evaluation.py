@@ -115,8 +115,9 @@ class MotionScore:
         return MotionScore(**{f.name: getattr(self, f.name) + getattr(other, f.name) for f in fields(self)})
 
     def summary(self) -> dict[str, float]:
-        """pixel_ and lit_ precision, recall and f1, blob_recall, blob_precision, dynamic_recall (moving
-        targets marked dynamic), static_rejection (static objects marked static), all 0-1, and frames.
+        """pixel_ and lit_ precision, recall and f1, pixel_f1_ceiling (see below), blob_recall,
+        blob_precision, dynamic_recall (moving targets marked dynamic), static_rejection (static objects
+        marked static), all 0-1, and frames.
 
         The two identification rates are NaN when there was nothing to classify (no dynamic filter, or no
         static object in the frames): unlike a miss, there is no score to give.
@@ -129,6 +130,11 @@ class MotionScore:
             "lit_precision": ratio(self.lit_tp, self.lit_tp + self.lit_fp),
             "lit_recall": ratio(self.lit_tp, self.lit_tp + self.lit_fn),
             "lit_f1": ratio(2 * self.lit_tp, 2 * self.lit_tp + self.lit_fp + self.lit_fn),
+            # pixel_f1 of a mask holding exactly the truth pixels that are not dark: the best score of a
+            # detector that marks only what the camera shows (2 lit / (lit + all truth pixels))
+            "pixel_f1_ceiling": ratio(
+                2 * (self.lit_tp + self.lit_fn), self.lit_tp + self.lit_fn + self.tp + self.fn
+            ),
             "blob_recall": ratio(self.targets_found, self.targets),
             "blob_precision": ratio(self.blobs_correct, self.blobs),
             "dynamic_recall": ratio(self.moving_dynamic, self.moving_boxes) if self.moving_boxes else nan,

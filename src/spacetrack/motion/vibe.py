@@ -7,7 +7,9 @@ replace one random sample of their own model with probability 1/`subsampling`, a
 probability, one random sample of a random 8-neighbour's model (spatial propagation, which lets ghosts
 dissolve into the background from their borders). Foreground pixels do not update (conservative,
 memoryless update: eqs. 3-4) until they have been foreground for `absorb_after` frames in a row: then they
-update like background, so a target that stopped becomes background (the paper's threshold T). The
+update too, each with probability 1/`absorb_subsampling`, so a target that stopped becomes background (the
+paper's threshold T). Absorbing faster than the background updates (`absorb_subsampling` < `subsampling`)
+also clears the ghosts that a target present in the first frame leaves behind within a few frames of T. The
 model starts from the first frame: each sample is the value of a random pixel in the 3x3 neighbourhood,
 so the first frame already has a mask (latency 0).
 
@@ -45,8 +47,10 @@ class ViBe:
             their model from the current frame.
         match_exposure: scale each grey frame to the first frame's mean grey level before comparing, so
             an exposure step is not foreground (grey models only).
-        absorb_after: frames a pixel must stay foreground before it updates like background (1-255);
-            0 never (pure conservative update).
+        absorb_after: frames a pixel must stay foreground before it updates too (1-255); 0 never (pure
+            conservative update).
+        absorb_subsampling: such a pixel updates with probability 1/absorb_subsampling (1: every frame, so
+            it is background about `min_matches` frames after `absorb_after`).
         seed: seed of the random tables; reset() restores it, so a rerun gives the same masks.
     """
 
@@ -63,12 +67,17 @@ class ViBe:
         compensate: bool = False,
         match_exposure: bool = False,
         absorb_after: int = 60,
+        absorb_subsampling: int | None = None,
         seed: int = 0,
     ) -> None:
         if not 1 <= min_matches <= num_samples:
             raise ValueError(f"min_matches must lie in 1..num_samples={num_samples}, got {min_matches}")
-        if subsampling < 1 or radius <= 0:
-            raise ValueError(f"subsampling must be >= 1 and radius > 0, got {subsampling} and {radius}")
+        absorb_subsampling = subsampling if absorb_subsampling is None else absorb_subsampling
+        if min(subsampling, absorb_subsampling) < 1 or radius <= 0:
+            raise ValueError(
+                f"subsampling and absorb_subsampling must be >= 1 and radius > 0, got {subsampling}, "
+                f"{absorb_subsampling} and {radius}"
+            )
         if not 0 <= absorb_after <= 255:
             raise ValueError(f"absorb_after must lie in 0..255 frames, got {absorb_after}")
         self.num_samples = num_samples
@@ -79,6 +88,7 @@ class ViBe:
         self.compensate = compensate
         self.match_exposure = match_exposure
         self.absorb_after = absorb_after
+        self.absorb_subsampling = absorb_subsampling
         self.seed = seed
         self._guard = FrameGuard()
         self._shift = SceneShift()
@@ -119,12 +129,11 @@ class ViBe:
             self._foreground_run = shift_image(self._foreground_run, dx, dy, 0)
             self._offset = offset
         foreground = self._foreground(image)
-        updating = cv2.bitwise_not(foreground)
+        absorbed = None
         if self.absorb_after > 0:
             self._foreground_run = cv2.bitwise_and(cv2.add(self._foreground_run, 1), foreground)
             absorbed = cv2.compare(self._foreground_run, self.absorb_after, cv2.CMP_GE)
-            updating = cv2.bitwise_or(updating, absorbed)
-        self._update(image, updating)
+        self._update(image, cv2.bitwise_not(foreground), absorbed)
         return foreground
 
     def _initialise(self, image: np.ndarray) -> None:
@@ -143,6 +152,11 @@ class ViBe:
     def _tables(self, n: int) -> None:
         # 255 with probability 1/subsampling; twice the frame size, read at a random offset each frame.
         self._hits = np.where(self._rng.random(2 * n) < 1.0 / self.subsampling, 255, 0).astype(np.uint8)
+        if self.absorb_subsampling == self.subsampling:
+            self._absorb_hits = self._hits
+        else:
+            chance = 1.0 / self.absorb_subsampling
+            self._absorb_hits = np.where(self._rng.random(2 * n) < chance, 255, 0).astype(np.uint8)
 
     def _foreground(self, image: np.ndarray) -> np.ndarray:
         """(H, W) uint8 mask, 255 where fewer than `min_matches` samples lie within `radius` of the pixel.
@@ -182,22 +196,31 @@ class ViBe:
         _, near = cv2.threshold(diff, int(np.ceil(self.radius)) - 1, 1, cv2.THRESH_BINARY_INV)
         return near
 
-    def _drawn(self, updating: np.ndarray) -> np.ndarray:
-        """(H, W) uint8 mask: the pixels of `updating` (0/255) drawn, each with probability 1/subsampling."""
-        n = updating.size
+    def _drawn(self, candidates: np.ndarray, hits: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 mask: the pixels of `candidates` (0/255) where the random table `hits` (read at a
+        random offset) is set, i.e. each drawn with that table's probability."""
+        n = candidates.size
         start = int(self._rng.integers(0, n))
-        return cv2.bitwise_and(updating, self._hits[start : start + n].reshape(updating.shape))
+        return cv2.bitwise_and(candidates, hits[start : start + n].reshape(candidates.shape))
 
-    def _update(self, image: np.ndarray, updating: np.ndarray) -> None:
-        """Random conservative update of the pixels in `updating` (uint8 (H, W), 255 = may update).
+    def _draw(self, background: np.ndarray, absorbed: np.ndarray | None) -> np.ndarray:
+        """The pixels that update this time: background ones with probability 1/subsampling, absorbed
+        foreground ones with probability 1/absorb_subsampling (uint8 (H, W) masks, 255 = set)."""
+        drawn = self._drawn(background, self._hits)
+        if absorbed is not None:
+            drawn = cv2.bitwise_or(drawn, self._drawn(absorbed, self._absorb_hits))
+        return drawn
+
+    def _update(self, image: np.ndarray, background: np.ndarray, absorbed: np.ndarray | None) -> None:
+        """Random conservative update (uint8 (H, W) masks, 255 = may update; see `_draw`).
 
         Drawn pixels copy their value into one sample of their own model, other drawn pixels into one
         sample of their neighbour's model in one direction; sample and direction are random per frame.
         """
         own = self._model[int(self._rng.integers(0, self.num_samples))]
-        cv2.copyTo(image, self._drawn(updating), own)  # writes into `own` in place
+        cv2.copyTo(image, self._draw(background, absorbed), own)  # writes into `own` in place
         dy, dx = (int(v) for v in _NEIGHBOURS[int(self._rng.integers(0, 8))])
         # moving the values and the mask by (dx, dy) lands pixel (y, x) on its neighbour (y + dy, x + dx)
         moved = shift_image(image, dx, dy, 0)
-        drawn = shift_image(self._drawn(updating), dx, dy, 0)
+        drawn = shift_image(self._draw(background, absorbed), dx, dy, 0)
         cv2.copyTo(moved, drawn, self._model[int(self._rng.integers(0, self.num_samples))])
