@@ -18,3 +18,15 @@ def smoke_dataset(tmp_path_factory) -> Path:
     cfg = compose_config("build_data", ["data=smoke", "logger=none", f"data_root={root}", "progress=false"])
     build_data.run(cfg)
     return root / "space_smoke"
+
+
+@pytest.fixture
+def one_torch_thread():
+    """torch on one CPU thread for the test, then as before: on a crowded machine tracing or building a
+    model on two threads can be many times slower than on one."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -1,11 +1,19 @@
-"""Shrink trained weights for shipping: the detector's EMA weights and the re-ID network in fp16.
+"""Shrink trained weights for shipping: the detector's EMA weights and the re-ID network in fp16, or
+both networks as float32 ONNX graphs for ONNX Runtime elsewhere.
 
     python -m spacetrack.export_weights --detector outputs/train/<run>/weights/best.pt \\
         --reid outputs/train_reid/space_default/fold3/reid.pt --out weights/
+    python -m spacetrack.export_weights --onnx --image-size 320 --detector weights/detector_yolov5s_fold3.pt \\
+        --reid weights/reid_fold3.pt --out outputs/
 
 The detector file keeps what `spacetrack.engine.checkpoint.load_detector` needs (`arch`, `ema`) plus the
 training settings and history; optimiser state and the raw weights are dropped. Both loaders cast the
 fp16 tensors back to the model's float32 on load.
+
+The ONNX graphs are the ones the pipeline's `backend=onnxruntime` runs: the detector takes one
+(1, 3, S, S) float32 RGB image in [0, 1] (letterboxed to S = --image-size) and gives (1, N, 5 + classes)
+rows `cx, cy, w, h` in pixels, objectness and class scores, before NMS; the re-ID network takes
+(N, 3, 128, 64) crops in [0, 1] and gives (N, 128) unit features.
 """
 
 from __future__ import annotations
@@ -15,8 +23,11 @@ from pathlib import Path
 
 import torch
 
-from spacetrack.engine.checkpoint import load_checkpoint
+from spacetrack.engine.checkpoint import load_checkpoint, load_detector
 from spacetrack.io import atomic_path, load_torch_file
+from spacetrack.onnx_backend import export_onnx
+from spacetrack.pipeline.detector import onnx_graph
+from spacetrack.reid.encoder import onnx_input_shape
 from spacetrack.reid.weights import load_weights
 
 
@@ -42,18 +53,36 @@ def export_reid(src: str | Path, dst: str | Path) -> Path:
     return Path(dst)
 
 
+def export_detector_onnx(src: str | Path, dst: str | Path, *, image_size: int = 320) -> Path:
+    if image_size % 32:
+        raise ValueError(f"--image-size must be a multiple of 32 pixels, got {image_size}")
+    return export_onnx(*onnx_graph(load_detector(src), image_size), dst)
+
+
+def export_reid_onnx(src: str | Path, dst: str | Path) -> Path:
+    net, _ = load_weights(src)
+    return export_onnx(net, onnx_input_shape(net), dst, dynamic_batch=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--detector", type=Path, help="a detector checkpoint (best.pt)")
     parser.add_argument("--reid", type=Path, help="re-ID weights (reid.pt)")
     parser.add_argument("--out", type=Path, required=True, help="folder for the fp16 files (must exist)")
     parser.add_argument("--suffix", default="fold3", help="name suffix, e.g. the validation fold")
+    parser.add_argument("--onnx", action="store_true", help="write float32 ONNX graphs instead of fp16 .pt")
+    parser.add_argument("--image-size", type=int, default=320, help="detector ONNX input side, pixels")
     args = parser.parse_args(argv)
-    if args.detector:
-        path = export_detector(args.detector, args.out / f"detector_yolov5s_{args.suffix}.pt")
-        print(f"{path}: {path.stat().st_size / 1e6:.1f} MB")
+    written = []
+    if args.detector and args.onnx:
+        name = f"detector_yolov5s_{args.suffix}_{args.image_size}px.onnx"
+        written.append(export_detector_onnx(args.detector, args.out / name, image_size=args.image_size))
+    elif args.detector:
+        written.append(export_detector(args.detector, args.out / f"detector_yolov5s_{args.suffix}.pt"))
     if args.reid:
-        path = export_reid(args.reid, args.out / f"reid_{args.suffix}.pt")
+        name = f"reid_{args.suffix}.{'onnx' if args.onnx else 'pt'}"
+        written.append((export_reid_onnx if args.onnx else export_reid)(args.reid, args.out / name))
+    for path in written:
         print(f"{path}: {path.stat().st_size / 1e6:.1f} MB")
 
 

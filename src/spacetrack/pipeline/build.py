@@ -21,6 +21,10 @@ from spacetrack.pipeline.timing import StageTimer
 from spacetrack.pipeline.weights import fold_artifact
 
 NO_REID = "none"
+# Detector keys that change how fast detections come, never what they are: left out of the cache key.
+# The weights enter it by file hash instead of path. The backend stays in: ONNX Runtime's outputs differ
+# from torch's by float32 rounding, which can break an NMS near-tie the other way.
+SPEED_ONLY_KEYS = ("weights", "device", "threads", "onnx_dir")
 
 
 @dataclass(frozen=True)
@@ -81,14 +85,19 @@ def _require_fold(cfg: DictConfig, key: str) -> None:
 
 def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKey:
     """What made (or would make) a source's detections: networks by file hash, settings by config hash."""
-    detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in ("weights", "device")}
+    detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in SPEED_ONLY_KEYS}
+    if detector.get("backend") == "torch":  # keeps the caches made before the key existed valid
+        del detector["backend"]
     detector_id = config_hash(detector)
     if weights.detector is not None:
         detector_id += " " + file_hash(weights.detector)
+    reid = NO_REID
+    if weights.reid is not None:
+        reid = file_hash(weights.reid) + ("" if cfg.reid.backend == "torch" else f" {cfg.reid.backend}")
     motion = {"motion": resolved_dict(cfg.motion), "dynamic": resolved_dict(cfg.dynamic)}
     return CacheKey(
         detector=detector_id,
-        reid=file_hash(weights.reid) if weights.reid is not None else NO_REID,
+        reid=reid,
         enhance=config_hash(resolved_dict(cfg.enhance)),
         motion=config_hash(motion),
         source=f"{source.description} ({source.num_frames} frames)",
@@ -105,7 +114,12 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
     encoder = None
     if weights.reid is not None:
         encoder = Encoder.from_weights(
-            weights.reid, device=resolve_device(cfg.reid.device), batch_size=cfg.reid.batch_size
+            weights.reid,
+            device=resolve_device(cfg.reid.device),
+            batch_size=cfg.reid.batch_size,
+            backend=cfg.reid.backend,
+            threads=cfg.reid.threads,
+            onnx_dir=cfg.reid.onnx_dir,
         )
     return DetectionStream(
         enhancer=instantiate(cfg.enhance),

@@ -12,11 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import nn
 
 from spacetrack.data.layout import read_mot
 from spacetrack.data.yolo_dataset import letterbox
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.nms import non_max_suppression
+from spacetrack.models.yolo import YOLOv5
+from spacetrack.onnx_backend import MethodModule, check_backend, onnx_session
 from spacetrack.pipeline.sources import FrameSource
 
 
@@ -33,6 +36,12 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def onnx_graph(model: YOLOv5, image_size: int) -> tuple[nn.Module, tuple[int, int, int, int]]:
+    """What the onnxruntime backend exports: the network with its box decoding (`predict`), and its input
+    shape, one RGB image of image_size x image_size pixels."""
+    return MethodModule(model, "predict"), (1, 3, image_size, image_size)
+
+
 class YoloDetector:
     """A trained detector checkpoint on RGB frames: letterbox to `image_size`, predict, torchvision NMS.
 
@@ -43,6 +52,11 @@ class YoloDetector:
         `min_confidence`, so that the cache serves every tracker setting).
     iou_threshold: NMS IoU limit between boxes of one class.
     device: "auto" (CUDA when present), "cpu" or "cuda".
+    backend: "torch", or "onnxruntime": the network (with its box decoding) exported once to ONNX and run
+        by ONNX Runtime; letterbox and NMS are the same for both.
+    threads: ONNX Runtime intra-op threads (0: its default, one per physical core); torch's threads are
+        the pipeline's `threads` key.
+    onnx_dir: folder of the cached ONNX exports (None: `outputs/onnx/` in the repository).
     """
 
     def __init__(
@@ -54,26 +68,50 @@ class YoloDetector:
         iou_threshold: float = 0.45,
         max_det: int = 100,
         device: str = "auto",
+        backend: str = "torch",
+        threads: int = 0,
+        onnx_dir: str | Path | None = None,
     ) -> None:
         if image_size % 32:
             raise ValueError(f"image_size must be a multiple of 32 pixels, got {image_size}")
         self.device = resolve_device(device)
-        self.model = load_detector(weights).to(self.device)
+        self.backend = check_backend(backend)
+        self.model = load_detector(weights)
+        self.session = None
+        if backend == "onnxruntime":
+            self.session = onnx_session(
+                *onnx_graph(self.model, image_size),
+                threads=threads,
+                device=self.device.type,
+                cache_dir=onnx_dir,
+                name=f"yolo{image_size}",
+            )
+        else:
+            self.model.to(self.device)
         self.image_size, self.conf_threshold = image_size, conf_threshold
         self.iou_threshold, self.max_det = iou_threshold, max_det
         self.identity = (
-            f"yolo {file_hash(weights)} size={image_size} conf={conf_threshold} iou={iou_threshold}"
+            f"yolo {file_hash(weights)} size={image_size} conf={conf_threshold} iou={iou_threshold} "
+            f"backend={backend}"
         )
 
     def begin(self, source: FrameSource) -> None:
         """Nothing to prepare: a detector sees each frame alone."""
 
     @torch.no_grad()
+    def predict(self, boxed: np.ndarray) -> torch.Tensor:
+        """Decoded predictions (1, N, 5 + classes) float32 of one letterboxed RGB uint8 image."""
+        if self.session is not None:
+            x = boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255)
+            return torch.from_numpy(self.session(x)[0])
+        x = torch.from_numpy(boxed).to(self.device).permute(2, 0, 1)[None].float().div_(255)
+        return self.model.predict(x).float()
+
+    @torch.no_grad()
     def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
         boxed, scale, (pad_x, pad_y) = letterbox(rgb, self.image_size)
-        x = torch.from_numpy(boxed).to(self.device).permute(2, 0, 1)[None].float().div_(255)
         (det,) = non_max_suppression(
-            self.model.predict(x).float(),
+            self.predict(boxed),
             conf_threshold=self.conf_threshold,
             iou_threshold=self.iou_threshold,
             max_det=self.max_det,

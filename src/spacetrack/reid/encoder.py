@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from spacetrack.onnx_backend import check_backend, onnx_session
 from spacetrack.reid.crops import Cropper, check_boxes, check_frame, frame_tensor
 from spacetrack.reid.network import ReidNet
 
@@ -17,6 +18,12 @@ def default_device() -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
+def onnx_input_shape(net: ReidNet) -> tuple[int, int, int, int]:
+    """The input shape the onnxruntime backend exports the network for; its first axis (crops) is left
+    free (`dynamic_batch`)."""
+    return (1, 3, net.input_height, net.input_width)
+
+
 class Encoder:
     """`encoder(frame_rgb, boxes_tlwh)` -> (N, feature_dim) float32 unit vectors, one per box; no box gives
     (0, feature_dim). Crops are cut and encoded in batches of `batch_size` on `device`.
@@ -24,6 +31,11 @@ class Encoder:
     A box partly outside the frame is encoded with black beyond the border (see `Cropper`); a box wholly
     outside shows nothing of the target, so its row is all zeros: cosine distance 1 to every feature, it can
     never match by appearance.
+
+    backend: "torch", or "onnxruntime": the network exported once to ONNX (any batch size) and run by ONNX
+        Runtime on crops cut by torch on `device`.
+    threads: ONNX Runtime intra-op threads (0: its default, one per physical core).
+    onnx_dir: folder of the cached ONNX exports (None: `outputs/onnx/` in the repository).
     """
 
     def __init__(
@@ -33,6 +45,9 @@ class Encoder:
         *,
         device: str | torch.device | None = None,
         batch_size: int = 64,
+        backend: str = "torch",
+        threads: int = 0,
+        onnx_dir: str | Path | None = None,
     ) -> None:
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
@@ -42,7 +57,21 @@ class Encoder:
                 f"{net.input_height}x{net.input_width}"
             )
         self.device = torch.device(device) if device is not None else default_device()
-        self.net = net.to(self.device).eval()
+        self.backend = check_backend(backend)
+        self.net = net.eval()
+        self.session = None
+        if backend == "onnxruntime":
+            self.session = onnx_session(
+                self.net,
+                onnx_input_shape(net),
+                threads=threads,
+                device=self.device.type,
+                dynamic_batch=True,
+                cache_dir=onnx_dir,
+                name="reid",
+            )
+        else:
+            self.net.to(self.device)
         self.cropper, self.batch_size = cropper, batch_size
 
     @property
@@ -96,14 +125,18 @@ class Encoder:
         shifted = boxes - np.array([x0, y0, 0.0, 0.0])
         for start in range(0, len(seen), self.batch_size):
             rows = seen[start : start + self.batch_size]
-            out[rows] = self.net(self.cropper(frame, shifted[rows])).float().cpu().numpy()
+            out[rows] = self.features(self.cropper(frame, shifted[rows]))
         return out
+
+    @torch.no_grad()
+    def features(self, crops: torch.Tensor) -> np.ndarray:
+        """Features of one batch of (N, 3, H, W) crops in [0, 1], (N, feature_dim) float32."""
+        if self.session is not None:
+            return self.session(crops.cpu().numpy())[0]
+        return self.net(crops.to(self.device)).float().cpu().numpy()
 
     @torch.no_grad()
     def encode_crops(self, crops: torch.Tensor) -> np.ndarray:
         """Features of ready (N, 3, H, W) crops in [0, 1], in batches; (N, feature_dim) float32."""
-        out = [
-            self.net(crops[i : i + self.batch_size].to(self.device)).float().cpu()
-            for i in range(0, len(crops), self.batch_size)
-        ]
-        return torch.cat(out).numpy() if out else np.zeros((0, self.feature_dim), dtype=np.float32)
+        out = [self.features(crops[i : i + self.batch_size]) for i in range(0, len(crops), self.batch_size)]
+        return np.concatenate(out) if out else np.zeros((0, self.feature_dim), dtype=np.float32)
