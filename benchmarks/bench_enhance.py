@@ -20,7 +20,6 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -33,7 +32,7 @@ from spacetrack.enhance import DwtHsvEnhancer
 from spacetrack.enhance import dwt_hsv as stages
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import markdown_table, summarize, time_call, write_report  # noqa: E402
+from common import interleaved_samples, markdown_table, summarize, write_report  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 
@@ -134,24 +133,6 @@ def stage_calls(enhancer: DwtHsvEnhancer, rgb: np.ndarray) -> dict[str, object]:
         ),
         "stage 6 to_rgb": lambda: stages.to_rgb(h, s, v_bil),
     }
-
-
-def interleaved_samples(
-    calls: dict, *, repeats: int
-) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
-    """Wall-clock and CPU seconds per call of each contender, timed round-robin (one call of each per
-    round), so that a change of machine load during the run hits every contender alike and the ratios
-    stay fair. CPU time (all threads of this process) is less sensitive to other processes' load."""
-    for call in calls.values():
-        time_call(call, repeats=0, warmup=3)
-    wall: dict[str, list[float]] = {name: [] for name in calls}
-    cpu: dict[str, list[float]] = {name: [] for name in calls}
-    for _ in range(repeats):
-        for name, call in calls.items():
-            t0 = time.process_time()
-            wall[name] += time_call(call, repeats=1, warmup=0)
-            cpu[name].append(time.process_time() - t0)
-    return wall, cpu
 
 
 def main() -> None:

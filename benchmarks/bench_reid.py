@@ -6,7 +6,11 @@ depend on their values):
 - `opencv_crops` (the peer for cutting crops): the classical per-box path, slice the frame, pad what lies
   beyond it, cv2.resize to 64x128, stack and convert, then the same network;
 - `crops_only` / `opencv_crops_only`: the two crop paths without the network;
-- `network_only`: the network on ready crops, so users see where the time goes.
+- `network_only`: the network on ready crops, so users see where the time goes;
+- `encoder_onnxruntime` / `network_only_onnxruntime`: the same with the network run by ONNX Runtime
+  (`reid.backend=onnxruntime`) on as many threads as torch.
+
+Contenders alternate call by call, so that load from other processes hits them alike.
 
     python benchmarks/bench_reid.py [--repeats 20] [--device cpu|cuda] [--threads 1]
 """
@@ -14,7 +18,9 @@ depend on their values):
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -25,7 +31,7 @@ from spacetrack.reid import Cropper, Encoder, ReidNet
 from spacetrack.reid.crops import frame_tensor
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import markdown_table, summarize, time_call, write_report  # noqa: E402
+from common import interleaved_samples, markdown_table, summarize, write_report  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 
@@ -62,7 +68,11 @@ def main() -> None:
     device = torch.device(args.device)
     torch.manual_seed(0)
     cropper = Cropper()
-    encoder = Encoder(ReidNet(), cropper, device=device, batch_size=64)
+    net = ReidNet()
+    encoder = Encoder(net, cropper, device=device, batch_size=64)
+    onnx_dir = tempfile.TemporaryDirectory()
+    by_ort = Encoder(net, cropper, device=device, batch_size=64, backend="onnxruntime",
+                     threads=args.threads or 0, onnx_dir=onnx_dir.name)  # fmt: skip
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
     def timed(fn):
@@ -73,6 +83,7 @@ def main() -> None:
         return call
 
     results, rows = {}, []
+    load_before = os.getloadavg()
     for batch in (1, 32):
         frame, boxes = scene(batch)
         ready = cropper(frame_tensor(frame, device), boxes)
@@ -82,8 +93,11 @@ def main() -> None:
             "crops_only": lambda f=frame, b=boxes: cropper(frame_tensor(f, device), b),
             "opencv_crops_only": lambda f=frame, b=boxes: opencv_crops(f, b, cropper).to(device),
             "network_only": lambda r=ready: encoder.encode_crops(r),
+            "encoder_onnxruntime": lambda f=frame, b=boxes: by_ort(f, b),
+            "network_only_onnxruntime": lambda r=ready: by_ort.encode_crops(r),
         }
-        stats = {name: summarize(time_call(timed(fn), repeats=args.repeats)) for name, fn in calls.items()}
+        wall, _ = interleaved_samples({name: timed(fn) for name, fn in calls.items()}, repeats=args.repeats)
+        stats = {name: summarize(samples) for name, samples in wall.items()}
         peer = stats["opencv_crops"]["median"]
         for name, s in stats.items():
             per_crop = s["median"] / batch
@@ -98,11 +112,18 @@ def main() -> None:
         "what": "re-ID encoder, 640x480 RGB frame, tlwh boxes 10-120 px -> 128-d unit features (ms)",
         "device": str(device),
         "torch_threads": torch.get_num_threads(),
+        "onnxruntime_threads": args.threads or 0,
         "repeats": args.repeats,
+        "load_average_1_5_15min": {"before": list(load_before), "after": list(os.getloadavg())},
         "results": results,
     }
+    onnx_dir.cleanup()
     header = ["contender", "batch", "median ms", "ms per crop", "p25", "p75", "x opencv_crops"]
-    table = f"# Re-ID encoder ({device})\n\n" + markdown_table(header, rows)
+    table = (
+        f"# Re-ID encoder ({device}, {torch.get_num_threads()} torch thread(s))\n\n"
+        f"1-minute load average {load_before[0]:.1f} before, {os.getloadavg()[0]:.1f} after the run, on a "
+        f"machine shared with other jobs: compare ratios within the run.\n\n" + markdown_table(header, rows)
+    )
     json_path, _ = write_report("reid", record, table)
     print(table)
     print(f"wrote {json_path}")

@@ -32,6 +32,24 @@ def time_call(fn: Callable[[], object], *, repeats: int, warmup: int = 3) -> lis
     return samples
 
 
+def interleaved_samples(
+    calls: dict, *, repeats: int
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Wall-clock and CPU seconds per call of each contender, timed round-robin (one call of each per
+    round), so that a change of machine load during the run hits every contender alike and the ratios
+    stay fair. CPU time (all threads of this process) is less sensitive to other processes' load."""
+    for call in calls.values():
+        time_call(call, repeats=0, warmup=3)
+    wall: dict[str, list[float]] = {name: [] for name in calls}
+    cpu: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, call in calls.items():
+            t0 = time.process_time()
+            wall[name] += time_call(call, repeats=1, warmup=0)
+            cpu[name].append(time.process_time() - t0)
+    return wall, cpu
+
+
 def summarize(samples: list[float], scale: float = 1e3) -> dict[str, float]:
     """Median, quartiles, min and max of `samples` multiplied by `scale` (default: seconds -> ms)."""
     xs = sorted(s * scale for s in samples)
