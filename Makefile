@@ -81,7 +81,7 @@ cv: ## the whole nine-fold study: cv-detector, cv-reid, then track-cv (DETECTOR_
 cv-detector: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the detector (Hydra multirun, one MLflow parent run)
 	$(PY) -m spacetrack.train -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
 
-bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 and training images/s -> reports/detector.json
+bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 (torch and ONNX Runtime, 1 and 2 threads) and training images/s -> reports/detector.json
 	$(PY) benchmarks/bench_detector.py $(ARGS)
 
 MOTION_DATA := data/motion_eval
