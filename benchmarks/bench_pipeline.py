@@ -2,11 +2,15 @@
 fusion, dynamic filter, tracker; and re-tracking from the detection cache, which is what a sweep pays.
 
 Contenders run on the same frames (held in memory: decoding is not the pipeline's cost) in interleaved
-rounds; the peer is the paper's configuration at the detector's 640 px input. The detector is a real
-YOLOv5s forward pass; without `--detector-weights` it is randomly initialised, and, so that the re-ID
-and the tracker see a realistic load, the boxes passed on are the sequence's ground truth.
+rounds; the peer is the paper's configuration: torch at the detector's 640 px input, stages one after
+another. The others: torch at 320 px; ONNX Runtime at 320 px (`backend: auto` on a CPU), in turn and
+with the motion stage overlapped in a thread (the default); the same on DWT/HSV-enhanced input. Without
+`--detector-weights` the detector is randomly initialised and, so that the re-ID and the tracker see a
+realistic load, the boxes passed on are the sequence's ground truth.
 
-    python benchmarks/bench_pipeline.py [--frames 60] [--rounds 3] [--threads 2]
+    python benchmarks/bench_pipeline.py [--frames 60] [--rounds 3] [--threads 1] [--ort-threads 1]
+    python benchmarks/bench_pipeline.py --detector-weights weights/detector_yolov5s_fold3.pt \
+        --reid-weights weights/reid_fold3.pt                 # the shipped models, real detections
 """
 
 from __future__ import annotations
@@ -94,6 +98,9 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest on a crowded machine)"
     )
+    parser.add_argument(
+        "--ort-threads", type=int, default=1, help="onnxruntime intra-op threads (0: its default)"
+    )
     parser.add_argument("--device", default="auto", help="auto (CUDA when present), cpu or cuda")
     parser.add_argument("--detector-weights", default=None, help="a trained best.pt (default: random init)")
     parser.add_argument("--reid-weights", default=None, help="a trained reid.pt (default: random init)")
@@ -107,25 +114,34 @@ def main() -> None:
     det_weights, reid_weights = random_weights(tmp)
     det_weights = Path(args.detector_weights or det_weights)
     device = resolve_device(args.device)
-    encoder = Encoder.from_weights(args.reid_weights or reid_weights, device=device)
+    reid_path = args.reid_weights or reid_weights
+    encoders = {
+        backend: Encoder.from_weights(reid_path, device=device, backend=backend, threads=args.ort_threads)
+        for backend in ("torch", "onnxruntime")
+    }
     truth = GroundTruthDetector(root=args.dataset)
 
-    def stream(size: int, enhance: str) -> DetectionStream:
-        network = YoloDetector(weights=det_weights, image_size=size, device=str(device))
+    def stream(size: int, enhance: str, backend: str, overlap: bool) -> DetectionStream:
+        network = YoloDetector(weights=det_weights, image_size=size, device=str(device), backend=backend,
+                               threads=args.ort_threads)  # fmt: skip
         detector = network if args.detector_weights else TimedNetworkTruthBoxes(network, truth)
         enhancer = instantiate(compose_config("track", [f"enhance={enhance}", "logger=none"]).enhance)
         return DetectionStream(
             enhancer=enhancer,
             detector=detector,
-            encoder=encoder,
+            encoder=encoders[backend],
             motion=instantiate(cfg.motion),
             dynamic_filter=instantiate(cfg.dynamic),
+            overlap_motion=overlap,
         )
 
+    ort = "torch" if device.type == "cuda" else "onnxruntime"  # what backend=auto runs
     contenders = {
-        "detector 640 (peer)": stream(640, "none"),
-        "detector 320": stream(320, "none"),
-        "detector 320 + DWT/HSV": stream(320, "dwt_hsv"),
+        "torch 640, in turn (peer)": stream(640, "none", "torch", False),
+        "torch 320, in turn": stream(320, "none", "torch", False),
+        f"{ort} 320, in turn": stream(320, "none", ort, False),
+        f"{ort} 320, motion overlapped (default)": stream(320, "none", ort, True),
+        f"{ort} 320 + DWT/HSV, motion overlapped": stream(320, "dwt_hsv", ort, True),
     }
     for s in contenders.values():  # warm-up: first calls allocate and pick kernels
         one_pass(s, frames[:3], args.sequence, cfg.tracker)
@@ -138,7 +154,7 @@ def main() -> None:
             samples[name].append(seconds)
             stages[name].append(by_stage)
         recorded = list(
-            contenders["detector 320"].run(
+            contenders["torch 320, in turn"].run(
                 FrameSource(args.sequence, "cache run", 10.0, len(frames), iter(frames))
             )
         )
@@ -151,8 +167,8 @@ def main() -> None:
                 item.rows[item.dynamic, 2:6], item.rows[item.dynamic, 6], item.rows[item.dynamic, 10:]
             )
         cache_samples.append((time.perf_counter() - start) / len(frames))
-    peer = statistics.median(samples["detector 640 (peer)"])
-    record = {"device": device.type, "load_average_1_5_15min": list(os.getloadavg()), "frames": len(frames), "size": [width, height], "rounds": args.rounds, "threads": args.threads,
+    peer = statistics.median(samples["torch 640, in turn (peer)"])
+    record = {"device": device.type, "load_average_1_5_15min": list(os.getloadavg()), "frames": len(frames), "size": [width, height], "rounds": args.rounds, "threads": args.threads, "ort_threads": args.ort_threads,
               "detector_weights": "trained" if args.detector_weights else "random init, ground-truth boxes passed on",
               "contenders": {}}  # fmt: skip
     table = []
@@ -183,7 +199,8 @@ def main() -> None:
         "tracker",
     ]
     md = (
-        f"# Whole pipeline per {width}x{height} frame ({device.type.upper()}, {args.threads} torch threads)\n\n"
+        f"# Whole pipeline per {width}x{height} frame ({device.type.upper()}, {args.threads} torch threads, "
+        f"{args.ort_threads} onnxruntime threads)\n\n"
         f"{len(frames)} frames of {args.sequence}, {args.rounds} interleaved rounds, medians; stage columns in ms"
         f" per frame. Detector: {record['detector_weights']}. Load average during the run:"
         f" {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (a machine shared with other jobs).\n\n"

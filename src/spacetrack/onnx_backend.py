@@ -27,16 +27,20 @@ from spacetrack.io import atomic_path
 
 log = logging.getLogger(__name__)
 
-BACKENDS = ("torch", "onnxruntime")
+BACKENDS = ("torch", "onnxruntime", "auto")
 DEFAULT_OPSET = 17
 DEFAULT_CACHE_DIR = REPO_ROOT / "outputs" / "onnx"
 INPUT_NAME, OUTPUT_NAME = "input", "output"
 
 
-def check_backend(backend: str) -> str:
-    """`backend` when it is one of BACKENDS, else a ValueError naming the choices."""
+def check_backend(backend: str, device: str = "cpu") -> str:
+    """The backend that runs: `backend`, with "auto" resolved to onnxruntime on the CPU (about twice
+    torch's speed there) and to torch on CUDA (the CPU onnxruntime package has no CUDA provider); a
+    ValueError naming the choices for anything else."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        return "onnxruntime" if device == "cpu" else "torch"
     return backend
 
 

@@ -144,9 +144,10 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
     def key(cfg):
         return cache_key(cfg, resolve_weights(cfg), source)
 
-    plain = key(config())
-    assert key(config("detector.threads=2", f"detector.onnx_dir={tmp_path}", "reid.threads=1")) == plain
-    without_backend = config()
+    torch_only = ("detector.backend=torch", "reid.backend=torch")
+    plain = key(config(*torch_only))
+    assert key(config(*torch_only, "detector.threads=2", f"detector.onnx_dir={tmp_path}")) == plain
+    without_backend = config(*torch_only)
     with open_dict(without_backend):
         del without_backend.detector.backend  # a config from before the key: its caches stay valid
     assert key(without_backend) == plain
@@ -155,5 +156,10 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
                  "reid.device=cpu")  # fmt: skip
     by_ort = key(cfg)
     assert by_ort.detector != plain.detector and by_ort.reid == plain.reid + " onnxruntime"
+    # "auto" is what runs: onnxruntime on the CPU, so it shares that cache; torch on CUDA
+    auto_cpu = config("detector.image_size=64", "detector.device=cpu", "reid.device=cpu")
+    assert auto_cpu.detector.backend == auto_cpu.reid.backend == "auto"
+    assert key(auto_cpu) == by_ort
+    assert check_backend("auto", "cuda") == "torch" and check_backend("auto", "cpu") == "onnxruntime"
     stream = build_stream(cfg, resolve_weights(cfg))
     assert stream.detector.session.path.parent == stream.encoder.session.path.parent == onnx_dir

@@ -13,6 +13,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from spacetrack.config import resolved_dict
+from spacetrack.onnx_backend import check_backend
 from spacetrack.pipeline.cache import CacheKey, config_hash
 from spacetrack.pipeline.detector import file_hash, resolve_device
 from spacetrack.pipeline.sources import FrameSource
@@ -86,14 +87,17 @@ def _require_fold(cfg: DictConfig, key: str) -> None:
 def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKey:
     """What made (or would make) a source's detections: networks by file hash, settings by config hash."""
     detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in SPEED_ONLY_KEYS}
-    if detector.get("backend") == "torch":  # keeps the caches made before the key existed valid
-        del detector["backend"]
+    if "backend" in detector:  # the backend that runs ("auto" resolved on the device)
+        detector["backend"] = check_backend(detector["backend"], resolve_device(cfg.detector.device).type)
+        if detector["backend"] == "torch":  # keeps the caches made before the key existed valid
+            del detector["backend"]
     detector_id = config_hash(detector)
     if weights.detector is not None:
         detector_id += " " + file_hash(weights.detector)
     reid = NO_REID
     if weights.reid is not None:
-        reid = file_hash(weights.reid) + ("" if cfg.reid.backend == "torch" else f" {cfg.reid.backend}")
+        backend = check_backend(cfg.reid.backend, resolve_device(cfg.reid.device).type)
+        reid = file_hash(weights.reid) + ("" if backend == "torch" else f" {backend}")
     motion = {"motion": resolved_dict(cfg.motion), "dynamic": resolved_dict(cfg.dynamic)}
     return CacheKey(
         detector=detector_id,
@@ -128,4 +132,5 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
         motion=instantiate(cfg.motion),
         dynamic_filter=instantiate(cfg.dynamic),
         timer=timer,
+        overlap_motion=cfg.overlap_motion,
     )

@@ -53,7 +53,8 @@ class YoloDetector:
     iou_threshold: NMS IoU limit between boxes of one class.
     device: "auto" (CUDA when present), "cpu" or "cuda".
     backend: "torch", or "onnxruntime": the network (with its box decoding) exported once to ONNX and run
-        by ONNX Runtime; letterbox and NMS are the same for both.
+        by ONNX Runtime; letterbox and NMS are the same for both. "auto": onnxruntime on the CPU, torch
+        on CUDA.
     threads: ONNX Runtime intra-op threads (0: its default, one per physical core); torch's threads are
         the pipeline's `threads` key.
     onnx_dir: folder of the cached ONNX exports (None: `outputs/onnx/` in the repository).
@@ -75,10 +76,10 @@ class YoloDetector:
         if image_size % 32:
             raise ValueError(f"image_size must be a multiple of 32 pixels, got {image_size}")
         self.device = resolve_device(device)
-        self.backend = check_backend(backend)
+        self.backend = check_backend(backend, self.device.type)
         self.model = load_detector(weights)
         self.session = None
-        if backend == "onnxruntime":
+        if self.backend == "onnxruntime":
             self.session = onnx_session(
                 *onnx_graph(self.model, image_size),
                 threads=threads,
@@ -92,7 +93,7 @@ class YoloDetector:
         self.iou_threshold, self.max_det = iou_threshold, max_det
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size} conf={conf_threshold} iou={iou_threshold} "
-            f"backend={backend}"
+            f"backend={self.backend}"
         )
 
     def begin(self, source: FrameSource) -> None:

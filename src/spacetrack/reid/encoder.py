@@ -57,10 +57,10 @@ class Encoder:
                 f"{net.input_height}x{net.input_width}"
             )
         self.device = torch.device(device) if device is not None else default_device()
-        self.backend = check_backend(backend)
+        self.backend = check_backend(backend, self.device.type)
         self.net = net.eval()
         self.session = None
-        if backend == "onnxruntime":
+        if self.backend == "onnxruntime":
             self.session = onnx_session(
                 self.net,
                 onnx_input_shape(net),
