@@ -147,6 +147,8 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
     torch_only = ("detector.backend=torch", "reid.backend=torch")
     plain = key(config(*torch_only))
     assert key(config(*torch_only, "detector.threads=2", f"detector.onnx_dir={tmp_path}")) == plain
+    # features of low-scoring boxes are left out: another threshold is another cache
+    assert key(config(*torch_only, "reid.min_score=0")).reid == plain.reid.split(" ")[0]
     without_backend = config(*torch_only)
     with open_dict(without_backend):
         del without_backend.detector.backend  # a config from before the key: its caches stay valid
@@ -155,7 +157,8 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
                  f"detector.onnx_dir={onnx_dir}", f"reid.onnx_dir={onnx_dir}", "detector.device=cpu",
                  "reid.device=cpu")  # fmt: skip
     by_ort = key(cfg)
-    assert by_ort.detector != plain.detector and by_ort.reid == plain.reid + " onnxruntime"
+    assert by_ort.detector != plain.detector
+    assert by_ort.reid == plain.reid.replace(" min_score", " onnxruntime min_score")
     # "auto" is what runs: onnxruntime on the CPU, so it shares that cache; torch on CUDA
     auto_cpu = config("detector.image_size=64", "detector.device=cpu", "reid.device=cpu")
     assert auto_cpu.detector.backend == auto_cpu.reid.backend == "auto"

@@ -104,3 +104,42 @@ def test_without_motion_every_detection_is_dynamic():
 def test_detection_rows_follow_the_design_layout():
     rows = detection_rows(7, np.array([[1.0, 2, 3, 4, 0.5, 2]]), np.array([[0.6, 0.8]]))
     assert rows.tolist() == [[7, -1, 1, 2, 3, 4, 0.5, -1, -1, -1, 0.6, 0.8]]
+
+
+class CountingEncoder:
+    """A feature of ones for every box it is given; counts the boxes it encoded."""
+
+    feature_dim = 3
+
+    def __init__(self):
+        self.encoded = 0
+
+    def __call__(self, rgb, boxes):
+        self.encoded += len(boxes)
+        return np.ones((len(boxes), self.feature_dim), np.float32)
+
+
+class ScoredBoxes:
+    """Three boxes per frame scoring 0.1, 0.3 and 0.9."""
+
+    def begin(self, source):
+        pass
+
+    def __call__(self, rgb, frame):
+        return np.array([[0.0, 0, 4, 4, 0.1, 0], [10, 0, 4, 4, 0.3, 0], [20, 0, 4, 4, 0.9, 0]])
+
+
+def test_only_detections_at_or_above_the_reid_min_score_are_encoded():
+    encoder = CountingEncoder()
+    stream = DetectionStream(
+        enhancer=lambda rgb: rgb,
+        detector=ScoredBoxes(),
+        encoder=encoder,
+        motion=None,
+        dynamic_filter=DynamicFilter(),
+        reid_min_score=0.3,
+    )
+    out = list(stream.run(_source(2)))
+    assert encoder.encoded == 4  # two boxes in each of two frames
+    features = out[0].rows[:, 10:]
+    assert features.tolist() == [[0, 0, 0], [1, 1, 1], [1, 1, 1]]

@@ -98,6 +98,8 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
     if weights.reid is not None:
         backend = check_backend(cfg.reid.backend, resolve_device(cfg.reid.device).type)
         reid = file_hash(weights.reid) + ("" if backend == "torch" else f" {backend}")
+        if cfg.reid.min_score > 0:
+            reid += f" min_score={cfg.reid.min_score}"
     motion = {"motion": resolved_dict(cfg.motion), "dynamic": resolved_dict(cfg.dynamic)}
     return CacheKey(
         detector=detector_id,
@@ -133,4 +135,5 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
         dynamic_filter=instantiate(cfg.dynamic),
         timer=timer,
         overlap_motion=cfg.overlap_motion,
+        reid_min_score=cfg.reid.min_score,
     )

@@ -63,6 +63,9 @@ class DetectionStream:
     dynamic_filter: marks boxes dynamic from the blobs (`motion.DynamicFilter`).
     overlap_motion: run the motion stage in a worker thread beside the detector and re-ID of the same
         frame; the `motion` timing is then only the time spent waiting for it.
+    reid_min_score: only detections scoring at least this are encoded; the others get an all-zero
+        feature (cosine distance 1 to everything). A tracker drops them before associating anyway when
+        its `min_confidence` is at least this, so their features would never be read.
     """
 
     def __init__(
@@ -75,10 +78,12 @@ class DetectionStream:
         dynamic_filter: DynamicFilter,
         timer: StageTimer | None = None,
         overlap_motion: bool = True,
+        reid_min_score: float = 0.0,
     ) -> None:
         self.enhancer, self.detector, self.encoder = enhancer, detector, encoder
         self.motion, self.dynamic_filter = motion, dynamic_filter
         self.overlap_motion = overlap_motion
+        self.reid_min_score = reid_min_score
         self.timer = timer or StageTimer()
 
     @property
@@ -111,9 +116,7 @@ class DetectionStream:
             with timer("detector"):
                 boxes = self.detector(enhanced, frame)
             with timer("reid"):
-                features = (
-                    self.encoder(rgb, boxes[:, :4]) if self.encoder is not None else np.zeros((len(boxes), 0))
-                )
+                features = self._features(rgb, boxes)
             pending.append(
                 (frame, rgb if keep_images else None, detection_rows(frame, boxes, features), boxes[:, 5])
             )
@@ -128,6 +131,18 @@ class DetectionStream:
             ready = self.motion.mask_index + 1  # 1-based frame the mask belongs to
             while pending and pending[0][0] <= ready:
                 yield self._resolve(pending.popleft(), self._last_blobs)
+
+    def _features(self, rgb: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        """(N, D) re-ID features of the (N, 6) boxes; zeros below `reid_min_score`; D = 0 with no encoder."""
+        if self.encoder is None:
+            return np.zeros((len(boxes), 0))
+        wanted = boxes[:, 4] >= self.reid_min_score
+        if wanted.all():
+            return self.encoder(rgb, boxes[:, :4])
+        features = np.zeros((len(boxes), self.encoder.feature_dim), np.float32)
+        if wanted.any():
+            features[wanted] = self.encoder(rgb, boxes[wanted, :4])
+        return features
 
     def _resolve(self, item: tuple, blobs: list[Blob] | None) -> FrameDetections:
         frame, image, rows, classes = item
