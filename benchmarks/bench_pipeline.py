@@ -133,6 +133,7 @@ def main() -> None:
             motion=instantiate(cfg.motion),
             dynamic_filter=instantiate(cfg.dynamic),
             overlap_motion=overlap,
+            reid_min_score=cfg.reid.min_score,
         )
 
     ort = "torch" if device.type == "cuda" else "onnxruntime"  # what backend=auto runs
