@@ -52,12 +52,18 @@ def _source(n: int) -> FrameSource:
     return FrameSource("fake", "fake frames", 10.0, n, frames)
 
 
+def _stream(**changes) -> DetectionStream:
+    """A stream of identity enhancement, `OneBoxDetector`, no encoder, no motion, a default filter, with
+    `changes` to any of those."""
+    kwargs = dict(enhancer=lambda rgb: rgb, detector=OneBoxDetector(), encoder=None, motion=None,
+                  dynamic_filter=DynamicFilter())  # fmt: skip
+    return DetectionStream(**(kwargs | changes))
+
+
 @pytest.mark.parametrize("overlap", [True, False])
 def test_detections_are_paired_with_the_blobs_of_their_own_frame(overlap):
     motion = LaggingMotion()
-    stream = DetectionStream(
-        enhancer=lambda rgb: rgb,
-        detector=OneBoxDetector(),
+    stream = _stream(
         encoder=lambda rgb, boxes: np.ones((len(boxes), 3)),  # like the Encoder: (0, D) for no box
         motion=motion,
         dynamic_filter=DynamicFilter(min_overlap=0.5, max_distance=0.0),
@@ -76,26 +82,14 @@ def test_detections_are_paired_with_the_blobs_of_their_own_frame(overlap):
 
 
 def test_an_error_in_the_overlapped_motion_stage_reaches_the_caller():
-    stream = DetectionStream(
-        enhancer=lambda rgb: rgb,
-        detector=OneBoxDetector(),
-        encoder=None,
-        motion=LaggingMotion(),
-        dynamic_filter=DynamicFilter(),
-    )
+    stream = _stream(motion=LaggingMotion())
     bad = FrameSource("bad", "bad frames", 10.0, 2, iter([np.zeros((1, 4, 3), np.uint8)] * 2))
     with pytest.raises(ValueError, match="1 px high"):
         list(stream.run(bad))
 
 
 def test_without_motion_every_detection_is_dynamic():
-    stream = DetectionStream(
-        enhancer=lambda rgb: rgb,
-        detector=OneBoxDetector(),
-        encoder=None,
-        motion=None,
-        dynamic_filter=DynamicFilter(),
-    )
+    stream = _stream()
     out = list(stream.run(_source(3)))
     assert all(f.dynamic.all() for f in out) and out[0].rows.shape == (1, 10) and out[0].image is None
     assert set(stream.timer.seconds) >= {"detector", "reid"}
@@ -131,14 +125,7 @@ class ScoredBoxes:
 
 def test_only_detections_at_or_above_the_reid_min_score_are_encoded():
     encoder = CountingEncoder()
-    stream = DetectionStream(
-        enhancer=lambda rgb: rgb,
-        detector=ScoredBoxes(),
-        encoder=encoder,
-        motion=None,
-        dynamic_filter=DynamicFilter(),
-        reid_min_score=0.3,
-    )
+    stream = _stream(detector=ScoredBoxes(), encoder=encoder, reid_min_score=0.3)
     out = list(stream.run(_source(2)))
     assert encoder.encoded == 4  # two boxes in each of two frames
     features = out[0].rows[:, 10:]
