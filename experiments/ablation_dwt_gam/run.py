@@ -74,7 +74,7 @@ NEUTRAL = ("threads", "device", "workers")
 
 def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     """(run id, best_* metrics, local best.pt) of the newest finished `detector` run trained exactly as
-    `cfg` would be (same fold, model, enhancement, data and training settings), or None."""
+    `cfg` would be (same fold, data, enhancement, model and training settings), or None."""
     client = mlflow.MlflowClient(tracking_uri=tracking_uri(cfg.logger.get("tracking_uri")))
     experiment = client.get_experiment_by_name(cfg.logger.experiment)
     if experiment is None:
@@ -82,7 +82,7 @@ def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     wanted = {
         k: v
         for k, v in flatten_params(resolved_dict(cfg)).items()
-        if k.startswith(("data.", "train.", "model.")) and not any(n in k for n in NEUTRAL)
+        if k.startswith(("data.", "enhance.", "model.", "train.")) and not any(n in k for n in NEUTRAL)
     }
     runs = client.search_runs(
         [experiment.experiment_id],

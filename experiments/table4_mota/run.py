@@ -38,6 +38,7 @@ ROWS: dict[str, tuple[str, list[str]]] = {
     "yolo_deepsort_original": ("original DeepSORT settings, plain YOLOv5s", YOLO + ["tracker=deepsort_original"]),
     "yolo_deepsort_paper": ("paper settings (Table 2), plain YOLOv5s", YOLO + ["tracker=deepsort_paper"]),
     "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"]),
+    "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"]),
     "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER),
     "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort"]),
     "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings", GT + ["tracker=deepsort_original"]),
