@@ -1,0 +1,55 @@
+"""The ablation study reuses a finished detector run only when it was trained exactly as asked."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import open_dict
+
+from spacetrack.config import CONF_DIR, REPO_ROOT
+from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
+
+spec = importlib.util.spec_from_file_location(
+    "ablation_run", REPO_ROOT / "experiments/ablation_dwt_gam/run.py"
+)
+ablation = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(ablation)
+
+
+@pytest.fixture
+def train_config(tmp_path):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+
+    def make(*overrides):
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+            cfg = compose("train", overrides=["fold=3", f"out_dir={tmp_path}", f"logger.tracking_uri={uri}",
+                                              *overrides])  # fmt: skip
+        with open_dict(cfg):
+            cfg.cv_parent_run_id = None
+        return cfg
+
+    return make
+
+
+def finished_run(cfg, weights, map50: float) -> str:
+    with start_run(cfg, tags={"fold": str(cfg.fold)}) as run:
+        log_metrics_step({"best_map50": map50, "best_map50_95": map50 / 2}, step=0)
+        log_artifact_file(weights, "weights")
+        return run.info.run_id
+
+
+def test_a_run_is_reused_only_with_the_same_enhancement_and_training(train_config, tmp_path):
+    weights = tmp_path / "best.pt"
+    weights.write_bytes(b"weights")
+    plain = finished_run(train_config("enhance=none"), weights, 0.4)
+    enhanced = finished_run(train_config("enhance=dwt_hsv"), weights, 0.5)
+    found = ablation.matching_run(train_config("enhance=dwt_hsv"))
+    assert found is not None
+    run_id, best, local = found
+    assert run_id == enhanced and best["map50"] == 0.5 and local.read_bytes() == b"weights"
+    # threads only change the speed: still the same run; other epochs or another model: none
+    assert ablation.matching_run(train_config("enhance=none", "train.threads=1"))[0] == plain
+    assert ablation.matching_run(train_config("enhance=none", "train.trainer.epochs=3")) is None
+    assert ablation.matching_run(train_config("enhance=none", "model=yolov5s_gam")) is None
