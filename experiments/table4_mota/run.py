@@ -40,7 +40,7 @@ ROWS: dict[str, tuple[str, list[str]]] = {
     "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"]),
     "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"]),
     "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER),
-    "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort"]),
+    "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort", "reid.weights=none"]),
     "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings", GT + ["tracker=deepsort_original"]),
     "gt_deepsort_paper": ("ground-truth boxes, paper settings", GT + ["tracker=deepsort_paper"]),
     "gt_deepsort_paper_nofilter": ("ground-truth boxes, paper settings, no filter", GT + ["tracker=deepsort_paper"] + NOFILTER),
