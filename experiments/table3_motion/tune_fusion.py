@@ -14,7 +14,6 @@ sequences they were not chosen on.
 from __future__ import annotations
 
 import argparse
-import copy
 from pathlib import Path
 
 from hydra.utils import instantiate
@@ -41,13 +40,6 @@ VARIANTS: dict[str, tuple[str, dict]] = {
 PEERS = ("vibe", "knn")
 
 
-def merged(base: dict, changes: dict) -> dict:
-    out = copy.deepcopy(base)
-    for key, value in changes.items():
-        out[key] = merged(out[key], value) if isinstance(value, dict) else value
-    return out
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset", type=Path)
@@ -56,8 +48,12 @@ def main() -> None:
     cfg = compose_config("eval_motion", ["logger=none", f"dataset={args.dataset}"])
     manifest = load_manifest(args.dataset)
     methods = {name: OmegaConf.to_container(cfg.methods[name], resolve=True) for name in PEERS}
-    fusion = OmegaConf.to_container(cfg.methods.fusion, resolve=True)
-    methods.update({name: merged(fusion, changes) for name, (_, changes) in VARIANTS.items()})
+    methods.update(
+        {
+            name: OmegaConf.to_container(OmegaConf.merge(cfg.methods.fusion, changes), resolve=True)
+            for name, (_, changes) in VARIANTS.items()
+        }
+    )
     rows: dict[str, dict[str, MotionScore]] = {}
     for seq in manifest["sequences"]:
         detectors = {name: instantiate(method) for name, method in methods.items()}
