@@ -92,45 +92,40 @@ class DetectionStream:
         return self.motion.latency if self.motion is not None else 0
 
     def run(self, source: FrameSource, *, keep_images: bool = False) -> Iterator[FrameDetections]:
+        timer = self.timer
         self.detector.begin(source)
         if self.motion is not None:
             self.motion.reset()
         pending: deque[tuple[int, np.ndarray | None, np.ndarray, np.ndarray]] = deque()
+        blobs: list[Blob] | None = None
         with ExitStack() as stack:
             worker = None
             if self.motion is not None and self.overlap_motion:
                 worker = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="motion"))
-            yield from self._frames(source, keep_images, pending, worker)
+            for frame, rgb in enumerate(source, start=1):
+                motion: Future | None = worker.submit(self.motion.apply, rgb) if worker is not None else None
+                with timer("enhance"):
+                    enhanced = self.enhancer(rgb)
+                with timer("detector"):
+                    boxes = self.detector(enhanced, frame)
+                with timer("reid"):
+                    features = self._features(rgb, boxes)
+                pending.append(
+                    (frame, rgb if keep_images else None, detection_rows(frame, boxes, features), boxes[:, 5])
+                )
+                if self.motion is None:
+                    yield self._resolve(pending.popleft(), None)
+                    continue
+                with timer("motion"):
+                    mask = motion.result() if motion is not None else self.motion.apply(rgb)
+                if mask is None:
+                    continue
+                blobs = list(self.motion.blobs)
+                ready = self.motion.mask_index + 1  # 1-based frame the mask belongs to
+                while pending and pending[0][0] <= ready:
+                    yield self._resolve(pending.popleft(), blobs)
         while pending:
-            yield self._resolve(pending.popleft(), self._last_blobs or [])
-
-    def _frames(
-        self, source: FrameSource, keep_images: bool, pending: deque, worker: ThreadPoolExecutor | None
-    ) -> Iterator[FrameDetections]:
-        timer = self.timer
-        self._last_blobs: list[Blob] | None = None
-        for frame, rgb in enumerate(source, start=1):
-            motion: Future | None = worker.submit(self.motion.apply, rgb) if worker is not None else None
-            with timer("enhance"):
-                enhanced = self.enhancer(rgb)
-            with timer("detector"):
-                boxes = self.detector(enhanced, frame)
-            with timer("reid"):
-                features = self._features(rgb, boxes)
-            pending.append(
-                (frame, rgb if keep_images else None, detection_rows(frame, boxes, features), boxes[:, 5])
-            )
-            if self.motion is None:
-                yield self._resolve(pending.popleft(), None)
-                continue
-            with timer("motion"):
-                mask = motion.result() if motion is not None else self.motion.apply(rgb)
-            if mask is None:
-                continue
-            self._last_blobs = list(self.motion.blobs)
-            ready = self.motion.mask_index + 1  # 1-based frame the mask belongs to
-            while pending and pending[0][0] <= ready:
-                yield self._resolve(pending.popleft(), self._last_blobs)
+            yield self._resolve(pending.popleft(), blobs or [])
 
     def _features(self, rgb: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         """(N, D) re-ID features of the (N, 6) boxes; zeros below `reid_min_score`; D = 0 with no encoder."""
