@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from spacetrack.motion import KNN, MOG2, FiveFrameDifference, Fusion, ViBe
 from spacetrack.motion.fusion import confirmed_regions, fill_regions
@@ -85,3 +86,28 @@ def test_confirmed_regions_keeps_whole_regions_with_enough_evidence():
     out = confirmed_regions(body, evidence, min_support=3)
     assert (out[2:10, 2:10] == 255).all() and out.sum() == 64 * 255
     assert not confirmed_regions(body, evidence, min_support=4).any()
+
+
+def test_parallel_fusion_gives_the_same_masks_and_blobs_as_in_turn(scene):
+    frames, _ = scene(30, size=10, velocity=(3, 1), stars=((5, 5), (80, 50)), noise=4.0)
+    in_turn, parallel = _fusion(), _fusion(parallel=True)
+    for _ in range(2):  # and again after a reset
+        for frame in frames:
+            a, b = in_turn.apply(frame), parallel.apply(frame)
+            assert (a is None) == (b is None)
+            if a is not None:
+                assert parallel.mask_index == in_turn.mask_index
+                assert np.array_equal(a, b) and parallel.blobs == in_turn.blobs
+        in_turn.reset()
+        parallel.reset()
+    parallel.close()
+    assert parallel.apply(frames[0]) is None  # a closed fusion starts a new worker when used again
+
+
+def test_parallel_fusion_reports_a_bad_frame_with_its_index(scene):
+    frames, _ = scene(6)
+    fusion = _fusion(parallel=True)
+    for frame in frames[:3]:
+        fusion.apply(frame)
+    with pytest.raises(ValueError, match="frame 3"):
+        fusion.apply(frames[3][:32])

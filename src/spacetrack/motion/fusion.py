@@ -12,6 +12,7 @@ background region is kept whole when the difference confirms it (`confirmed_regi
 from __future__ import annotations
 
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -67,6 +68,8 @@ class Fusion:
             slow target's difference mask is an outline with a hollow middle; the pixel 'and' keeps only
             the outline, the region 'and' the body around it.
         min_support: difference pixels a region needs in "region" mode.
+        parallel: run the difference (and the filtering of its mask) in a worker thread while the calling
+            thread runs the background model, so the two use two cores; the masks are the same either way.
     """
 
     def __init__(
@@ -81,6 +84,7 @@ class Fusion:
         final_ksize: int = 5,
         combine: str = "region",
         min_support: int = 3,
+        parallel: bool = False,
     ) -> None:
         if combine not in ("pixel", "region"):
             raise ValueError(f"combine must be 'pixel' or 'region', got {combine!r}")
@@ -96,6 +100,8 @@ class Fusion:
         self.final_ksize = final_ksize
         self.combine = combine
         self.min_support = min_support
+        self.parallel = parallel
+        self._worker: ThreadPoolExecutor | None = None
         self.latency = max(difference.latency, background.latency)
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_ksize, close_ksize))
         self.reset()
@@ -115,10 +121,19 @@ class Fusion:
 
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         """Fused (H, W) uint8 mask (255 = moving) of frame `mask_index`, or None; also sets `blobs`."""
-        for queue, detector in zip(self._pending, (self.difference, self.background), strict=True):
-            mask = detector.apply(frame)
-            if mask is not None:
-                queue.append((detector.mask_index, mask))
+        if self.parallel:
+            if self._worker is None:
+                self._worker = ThreadPoolExecutor(1, thread_name_prefix="fusion")
+            pending = self._worker.submit(self._step, self.difference, frame, 0)
+            try:
+                self._step(self.background, frame, 1)
+            finally:
+                error = pending.exception()  # waits for the worker, also when the background raised
+            if error is not None:
+                raise error
+        else:
+            self._step(self.difference, frame, 0)
+            self._step(self.background, frame, 1)
         first, second = self._pending
         # A detector may start later than its latency says (it needs frames on both sides): skip the
         # frames only one of them has a mask for.
@@ -127,7 +142,6 @@ class Fusion:
         if not (first and second):
             return None
         (self._mask_index, a), (_, b) = first.popleft(), second.popleft()
-        a, b = self._prepare(a), self._prepare(b)
         if self.combine == "pixel":
             fused = fill_regions(cv2.bitwise_and(a, b), min_area=self.min_area)
         else:
@@ -135,6 +149,18 @@ class Fusion:
         fused = _smooth(fused, self.final_ksize, 127)
         self.blobs = find_blobs(fused, min_area=self.min_area)
         return fused
+
+    def close(self) -> None:
+        """Stop the worker thread of `parallel` (a later `apply` starts a new one)."""
+        if self._worker is not None:
+            self._worker.shutdown()
+            self._worker = None
+
+    def _step(self, detector: MotionDetector, frame: np.ndarray, side: int) -> None:
+        """Feed `frame` to one detector and queue its filtered mask (if any) on `side` (0: difference)."""
+        mask = detector.apply(frame)
+        if mask is not None:
+            self._pending[side].append((detector.mask_index, self._prepare(mask)))
 
     def _prepare(self, mask: np.ndarray) -> np.ndarray:
         mask = _smooth(mask, self.blur_ksize, self.blur_level)
