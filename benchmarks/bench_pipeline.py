@@ -3,8 +3,10 @@ fusion, dynamic filter, tracker; and re-tracking from the detection cache, which
 
 Contenders run on the same frames (held in memory: decoding is not the pipeline's cost) in interleaved
 rounds; the peer is the paper's configuration: torch at the detector's 640 px input, stages one after
-another. The others: torch at 320 px; ONNX Runtime at 320 px (`backend: auto` on a CPU), in turn and
-with the motion stage overlapped in a thread (the default); the same on DWT/HSV-enhanced input. Without
+another. The others: torch at 320 px; ONNX Runtime at 320 px (`backend: auto` on a CPU): in turn, with the
+motion stage overlapped in a thread, and with the re-ID of each frame also overlapped with the detector
+of the next (the default), there also with the fusion's two detectors on two threads
+(`motion.parallel=true`); the defaults on DWT/HSV-enhanced input. Without
 `--detector-weights` the detector is randomly initialised and, so that the re-ID and the tracker see a
 realistic load, the boxes passed on are the sequence's ground truth.
 
@@ -121,7 +123,8 @@ def main() -> None:
     }
     truth = GroundTruthDetector(root=args.dataset)
 
-    def stream(size: int, enhance: str, backend: str, overlap: bool) -> DetectionStream:
+    def stream(size: int, enhance: str, backend: str, *, overlap: bool = False, overlap_reid: bool = False,
+               parallel_fusion: bool = False) -> DetectionStream:  # fmt: skip
         network = YoloDetector(weights=det_weights, image_size=size, device=str(device), backend=backend,
                                threads=args.ort_threads)  # fmt: skip
         detector = network if args.detector_weights else TimedNetworkTruthBoxes(network, truth)
@@ -130,19 +133,25 @@ def main() -> None:
             enhancer=enhancer,
             detector=detector,
             encoder=encoders[backend],
-            motion=instantiate(cfg.motion),
+            motion=instantiate(cfg.motion, parallel=parallel_fusion),
             dynamic_filter=instantiate(cfg.dynamic),
             overlap_motion=overlap,
+            overlap_reid=overlap_reid,
             reid_min_score=cfg.reid.min_score,
         )
 
     ort = "torch" if device.type == "cuda" else "onnxruntime"  # what backend=auto runs
+    both = {"overlap": True, "overlap_reid": True}
     contenders = {
-        "torch 640, in turn (peer)": stream(640, "none", "torch", False),
-        "torch 320, in turn": stream(320, "none", "torch", False),
-        f"{ort} 320, in turn": stream(320, "none", ort, False),
-        f"{ort} 320, motion overlapped (default)": stream(320, "none", ort, True),
-        f"{ort} 320 + DWT/HSV, motion overlapped": stream(320, "dwt_hsv", ort, True),
+        "torch 640, in turn (peer)": stream(640, "none", "torch"),
+        "torch 320, in turn": stream(320, "none", "torch"),
+        f"{ort} 320, in turn": stream(320, "none", ort),
+        f"{ort} 320, motion overlapped": stream(320, "none", ort, overlap=True),
+        f"{ort} 320, motion and re-ID overlapped (default)": stream(320, "none", ort, **both),
+        f"{ort} 320, overlapped, fusion on two threads": stream(
+            320, "none", ort, **both, parallel_fusion=True
+        ),
+        f"{ort} 320 + DWT/HSV, overlapped": stream(320, "dwt_hsv", ort, **both),
     }
     for s in contenders.values():  # warm-up: first calls allocate and pick kernels
         one_pass(s, frames[:3], args.sequence, cfg.tracker)

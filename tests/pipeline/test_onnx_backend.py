@@ -147,6 +147,9 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
     torch_only = ("detector.backend=torch", "reid.backend=torch")
     plain = key(config(*torch_only))
     assert key(config(*torch_only, "detector.threads=2", f"detector.onnx_dir={tmp_path}")) == plain
+    # settings that change the speed only keep the cache; motion settings do not
+    assert key(config(*torch_only, "motion.parallel=true", "overlap_reid=false")) == plain
+    assert key(config(*torch_only, "motion.min_support=4")).motion != plain.motion
     # features of low-scoring boxes are left out: another threshold is another cache
     assert key(config(*torch_only, "reid.min_score=0")).reid == plain.reid.split(" ")[0]
     without_backend = config(*torch_only)

@@ -60,25 +60,35 @@ def _stream(**changes) -> DetectionStream:
     return DetectionStream(**(kwargs | changes))
 
 
-@pytest.mark.parametrize("overlap", [True, False])
-def test_detections_are_paired_with_the_blobs_of_their_own_frame(overlap):
+@pytest.mark.parametrize(
+    ("overlap", "overlap_reid"), [(True, True), (True, False), (False, True), (False, False)]
+)
+def test_detections_are_paired_with_the_blobs_of_their_own_frame(overlap, overlap_reid):
     motion = LaggingMotion()
+    threads = set()
+
+    def encoder(rgb, boxes):  # like the Encoder: (0, D) for no box
+        threads.add(threading.current_thread().name)
+        return np.ones((len(boxes), 3))
+
     stream = _stream(
-        encoder=lambda rgb, boxes: np.ones((len(boxes), 3)),  # like the Encoder: (0, D) for no box
+        encoder=encoder,
         motion=motion,
         dynamic_filter=DynamicFilter(min_overlap=0.5, max_distance=0.0),
         overlap_motion=overlap,
+        overlap_reid=overlap_reid,
     )
     out = list(stream.run(_source(6), keep_images=True))
-    # overlapped, the motion stage runs beside the detector in its own thread; the answers are the same
+    # overlapped, the motion stage and the re-ID run in threads of their own; the answers are the same
     assert (motion.thread == threading.current_thread().name) is not overlap
+    assert (threads == {threading.current_thread().name}) is not overlap_reid
     assert [f.frame for f in out] == [1, 2, 3, 4, 5, 6]
     # Frames 1-4 get masks of their own frame (1 and 2 wait for frame 3's, whose blob is elsewhere);
     # 5 (no detection at all) and 6 never get one and take frame 4's blob, which is elsewhere too.
     assert [f.dynamic.tolist() for f in out] == [[False], [False], [True], [True], [], [False]]
     assert out[4].rows.shape == (0, 13)
     assert out[0].rows.shape == (1, 13) and out[0].image.shape == (20, 100, 3)
-    assert out[3].classes.tolist() == [1] and stream.latency == 2
+    assert out[3].classes.tolist() == [1] and stream.latency == 2 + overlap_reid
 
 
 def test_an_error_in_the_overlapped_motion_stage_reaches_the_caller():
@@ -130,3 +140,41 @@ def test_only_detections_at_or_above_the_reid_min_score_are_encoded():
     assert encoder.encoded == 4  # two boxes in each of two frames
     features = out[0].rows[:, 10:]
     assert features.tolist() == [[0, 0, 0], [1, 1, 1], [1, 1, 1]]
+
+
+class RecordingDetector(OneBoxDetector):
+    """Sets an event for each frame as the detector starts on it."""
+
+    def __init__(self):
+        self.started = {k: threading.Event() for k in range(1, 10)}
+
+    def __call__(self, rgb, frame):
+        self.started[frame].set()
+        return super().__call__(rgb, frame)
+
+
+def test_overlapped_reid_encodes_a_frame_while_the_detector_works_on_the_next():
+    detector = RecordingDetector()
+    seen_next = []
+
+    class WaitingEncoder:
+        feature_dim = 3
+        frame = 0
+
+        def __call__(self, rgb, boxes):
+            self.frame += 1  # called for every frame, also with no box
+            # encoding frame t: the detector starts frame t + 1 meanwhile (the last frame has no next one)
+            seen_next.append(self.frame == 6 or detector.started[self.frame + 1].wait(timeout=10))
+            return np.ones((len(boxes), 3), np.float32)
+
+    out = list(_stream(detector=detector, encoder=WaitingEncoder()).run(_source(6)))
+    assert [f.frame for f in out] == [1, 2, 3, 4, 5, 6] and seen_next == [True] * 6
+    assert out[0].rows[:, 10:].tolist() == [[1, 1, 1]]
+
+
+def test_an_error_in_the_overlapped_reid_reaches_the_caller():
+    def failing(rgb, boxes):
+        raise RuntimeError("re-ID failed on purpose")
+
+    with pytest.raises(RuntimeError, match="on purpose"):
+        list(_stream(encoder=failing).run(_source(3)))

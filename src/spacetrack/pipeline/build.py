@@ -100,7 +100,9 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
         reid = file_hash(weights.reid) + ("" if backend == "torch" else f" {backend}")
         if cfg.reid.min_score > 0:
             reid += f" min_score={cfg.reid.min_score}"
-    motion = {"motion": resolved_dict(cfg.motion), "dynamic": resolved_dict(cfg.dynamic)}
+    # The fusion's `parallel` only changes how fast the same masks come.
+    motion_settings = {k: v for k, v in resolved_dict(cfg.motion).items() if k != "parallel"}
+    motion = {"motion": motion_settings, "dynamic": resolved_dict(cfg.dynamic)}
     return CacheKey(
         detector=detector_id,
         reid=reid,
@@ -135,5 +137,6 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
         dynamic_filter=instantiate(cfg.dynamic),
         timer=timer,
         overlap_motion=cfg.overlap_motion,
+        overlap_reid=cfg.overlap_reid,
         reid_min_score=cfg.reid.min_score,
     )

@@ -8,13 +8,15 @@ the blobs of the last mask.
 
 The motion stage needs only the raw frame, so by default it runs in a worker thread while the detector and
 the re-ID encoder work on the same frame (OpenCV, torch and ONNX Runtime release the GIL): on two cores the
-motion fusion then costs little wall time. Its answers are identical either way.
+motion fusion then costs little wall time. And the re-ID encoder, which needs the frame's boxes, by default
+encodes frame t in another worker thread while the detector already works on frame t + 1: the two networks
+then share the cores instead of taking turns. The answers are identical either way.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -63,6 +65,8 @@ class DetectionStream:
     dynamic_filter: marks boxes dynamic from the blobs (`motion.DynamicFilter`).
     overlap_motion: run the motion stage in a worker thread beside the detector and re-ID of the same
         frame; the `motion` timing is then only the time spent waiting for it.
+    overlap_reid: encode each frame's boxes in a worker thread while the detector works on the next
+        frame; the `reid` timing is then only the time spent waiting for it.
     reid_min_score: only detections scoring at least this are encoded; the others get an all-zero
         feature (cosine distance 1 to everything). A tracker drops them before associating anyway when
         its `min_confidence` is at least this, so their features would never be read.
@@ -78,18 +82,22 @@ class DetectionStream:
         dynamic_filter: DynamicFilter,
         timer: StageTimer | None = None,
         overlap_motion: bool = True,
+        overlap_reid: bool = True,
         reid_min_score: float = 0.0,
     ) -> None:
         self.enhancer, self.detector, self.encoder = enhancer, detector, encoder
         self.motion, self.dynamic_filter = motion, dynamic_filter
         self.overlap_motion = overlap_motion
+        self.overlap_reid = overlap_reid
         self.reid_min_score = reid_min_score
         self.timer = timer or StageTimer()
 
     @property
     def latency(self) -> int:
-        """Frames a frame's detections wait for its motion mask."""
-        return self.motion.latency if self.motion is not None else 0
+        """Frames the stream reads past a frame before it yields that frame's detections: the motion
+        stage's latency, plus one with `overlap_reid` (the re-ID of a frame ends during the next one's)."""
+        reid_lag = int(self.encoder is not None and self.overlap_reid)
+        return (self.motion.latency if self.motion is not None else 0) + reid_lag
 
     def run(self, source: FrameSource, *, keep_images: bool = False) -> Iterator[FrameDetections]:
         timer = self.timer
@@ -99,33 +107,70 @@ class DetectionStream:
         pending: deque[tuple[int, np.ndarray | None, np.ndarray, np.ndarray]] = deque()
         blobs: list[Blob] | None = None
         with ExitStack() as stack:
-            worker = None
+            motion_worker = reid_worker = None
             if self.motion is not None and self.overlap_motion:
-                worker = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="motion"))
+                motion_worker = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="motion"))
+            if self.encoder is not None and self.overlap_reid:
+                reid_worker = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="reid"))
+            # the frame whose detector boxes are in and whose re-ID features and motion mask may still be
+            # on their way: (frame, rgb, boxes, features or their Future, motion mask Future or None)
+            previous = None
             for frame, rgb in enumerate(source, start=1):
-                motion: Future | None = worker.submit(self.motion.apply, rgb) if worker is not None else None
+                motion = motion_worker.submit(self._motion_step, rgb) if motion_worker is not None else None
                 with timer("enhance"):
                     enhanced = self.enhancer(rgb)
                 with timer("detector"):
                     boxes = self.detector(enhanced, frame)
-                with timer("reid"):
-                    features = self._features(rgb, boxes)
-                pending.append(
-                    (frame, rgb if keep_images else None, detection_rows(frame, boxes, features), boxes[:, 5])
-                )
-                if self.motion is None:
-                    yield self._resolve(pending.popleft(), None)
-                    continue
-                with timer("motion"):
-                    mask = motion.result() if motion is not None else self.motion.apply(rgb)
-                if mask is None:
-                    continue
-                blobs = list(self.motion.blobs)
-                ready = self.motion.mask_index + 1  # 1-based frame the mask belongs to
-                while pending and pending[0][0] <= ready:
-                    yield self._resolve(pending.popleft(), blobs)
+                if previous is not None:  # its re-ID ran beside this frame's detector
+                    blobs = yield from self._finish(*previous, pending, blobs, keep_images)
+                if reid_worker is not None:
+                    features = reid_worker.submit(self._features, rgb, boxes)
+                else:
+                    with timer("reid"):
+                        features = self._features(rgb, boxes)
+                previous = (frame, rgb, boxes, features, motion)
+            if previous is not None:
+                blobs = yield from self._finish(*previous, pending, blobs, keep_images)
         while pending:
             yield self._resolve(pending.popleft(), blobs or [])
+
+    def _finish(
+        self,
+        frame: int,
+        rgb: np.ndarray,
+        boxes: np.ndarray,
+        features: np.ndarray | Future,
+        motion: Future | None,
+        pending: deque,
+        blobs: list[Blob] | None,
+        keep_images: bool,
+    ) -> Generator[FrameDetections, None, list[Blob] | None]:
+        """Queue one frame's detections once its features are in; yield every queued frame whose motion
+        mask is known (frames in order). Returns the blobs of the latest motion mask (`blobs` if none
+        came)."""
+        if isinstance(features, Future):
+            with self.timer("reid"):
+                features = features.result()
+        pending.append(
+            (frame, rgb if keep_images else None, detection_rows(frame, boxes, features), boxes[:, 5])
+        )
+        if self.motion is None:
+            yield self._resolve(pending.popleft(), None)
+            return blobs
+        with self.timer("motion"):
+            mask, index, new_blobs = motion.result() if motion is not None else self._motion_step(rgb)
+        if mask is None:
+            return blobs
+        blobs = new_blobs
+        while pending and pending[0][0] <= index + 1:  # index: 0-based frame the mask belongs to
+            yield self._resolve(pending.popleft(), blobs)
+        return blobs
+
+    def _motion_step(self, rgb: np.ndarray) -> tuple[np.ndarray | None, int, list[Blob]]:
+        """Feed a frame to the motion stage: its mask (or None), the 0-based frame the mask belongs to, and
+        its blobs, read together (the worker may move on to the next frame before they are used)."""
+        mask = self.motion.apply(rgb)
+        return mask, self.motion.mask_index, list(self.motion.blobs) if mask is not None else []
 
     def _features(self, rgb: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         """(N, D) re-ID features of the (N, 6) boxes; zeros below `reid_min_score`; D = 0 with no encoder."""
