@@ -7,7 +7,13 @@ Each finished (row, fold) writes `results/<row>/fold<k>.json` (its metrics, the 
 command), then `table4.md` and `table4.json` are regenerated from every result present; with `--commit`
 those files are committed at once, so a killed run loses at most the piece it was on. A piece whose
 fold has no trained detector or re-ID is skipped with the command that trains it; run again once it
-exists. Pieces already done are never recomputed (delete their JSON to redo one).
+exists. With `--train` the missing model is trained there and then (that same command, plus the
+`--detector-args` or `--reid-args` overrides) and the piece runs after it: one command fills whole
+folds, and being killed loses at most the model in training (finished training runs are in MLflow and
+found the next time). Pieces already done are never recomputed (delete their JSON to redo one).
+
+    python experiments/table4_mota/run.py --folds 1 --train --commit threads=1 \
+        --detector-args "train.threads=1" --reid-args "train_reid.threads=1"
 """
 
 from __future__ import annotations
@@ -86,6 +92,28 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
         if torch.cuda.is_available()
         else f"CPU ({platform.processor() or platform.machine()})",
     }
+
+
+def run_with_models(row: str, fold: int, common: list[str], train_args: dict[str, list[str]] | None) -> dict:
+    """`run_piece`; with `train_args` ({training module: extra overrides}) each missing model is first
+    trained by the command its error names plus that module's extra overrides. Without, a missing model
+    raises MissingWeightsError."""
+    trained: list[tuple] = []
+    while True:
+        try:
+            return run_piece(row, fold, common)
+        except MissingWeightsError as err:
+            if train_args is None or err.train is None:
+                raise
+            module, overrides = err.train
+            if (module, overrides) in trained:
+                raise RuntimeError(
+                    f"{module} {' '.join(overrides)} finished, but its run is still not found: {err}"
+                ) from err
+            trained.append((module, overrides))
+            command = [sys.executable, "-m", module, *overrides, *train_args.get(module, [])]
+            print("training: " + " ".join(command[1:]), flush=True)
+            subprocess.run(command, cwd=REPO_ROOT, check=True)
 
 
 def _git(*args: str) -> str:
@@ -176,11 +204,18 @@ def main() -> None:
     parser.add_argument("--rows", default=",".join(ROWS), help="comma-separated rows (default: all)")
     parser.add_argument("--folds", default="0-8", help="'0-8' or '1,3'")
     parser.add_argument("--commit", action="store_true", help="git-commit each finished piece's files")
+    parser.add_argument("--train", action="store_true", help="train a piece's missing models, then run it")
+    parser.add_argument("--detector-args", default="", help="extra overrides for detector training")
+    parser.add_argument("--reid-args", default="", help="extra overrides for re-ID training")
     parser.add_argument("overrides", nargs="*", help="extra track.yaml overrides for every piece")
     args = parser.parse_args()
     unknown = [r for r in args.rows.split(",") if r not in ROWS]
     if unknown:
         parser.error(f"unknown rows {unknown}; known: {list(ROWS)}")
+    train_args = None
+    if args.train:
+        train_args = {"spacetrack.train": args.detector_args.split(),
+                      "spacetrack.train_reid": args.reid_args.split()}  # fmt: skip
     missing = []
     for row in args.rows.split(","):
         for fold in folds_arg(args.folds):
@@ -188,7 +223,7 @@ def main() -> None:
             if path.is_file():
                 continue
             try:
-                record = run_piece(row, fold, args.overrides)
+                record = run_with_models(row, fold, args.overrides, train_args)
             except MissingWeightsError as err:
                 missing.append(f"{row} fold {fold}: {err}")
                 print(f"skipped {row} fold {fold}: {err}", flush=True)

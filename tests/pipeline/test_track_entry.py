@@ -98,8 +98,18 @@ def test_stale_cache_is_refused_or_rebuilt(smoke_dataset, tmp_path):
 
 def test_fold_without_trained_model_names_the_command(smoke_dataset, tmp_path):
     cfg = track_config(smoke_dataset, tmp_path, "fold=4", f"logger.tracking_uri=sqlite:///{tmp_path}/m.db")
-    with pytest.raises(MissingWeightsError, match="make train FOLD=4"):
+    with pytest.raises(MissingWeightsError, match="make train FOLD=4") as err:
         build_module.resolve_weights(cfg)
+    assert err.value.train == ("spacetrack.train", ["fold=4"])
+    gam = ["detector_run.model=after_sppf", "enhance=dwt_hsv"]
+    cfg = track_config(
+        smoke_dataset, tmp_path, "fold=4", *gam, f"logger.tracking_uri=sqlite:///{tmp_path}/m.db"
+    )
+    with pytest.raises(
+        MissingWeightsError, match='make train FOLD=4 ARGS="model=yolov5s_gam enhance=dwt_hsv"'
+    ) as err:
+        build_module.resolve_weights(cfg)
+    assert err.value.train == ("spacetrack.train", ["fold=4", "model=yolov5s_gam", "enhance=dwt_hsv"])
     cfg = track_config(
         smoke_dataset,
         tmp_path,

@@ -41,6 +41,18 @@ def _needs_detector_weights(cfg: DictConfig) -> bool:
     return "weights" in cfg.detector
 
 
+def _model_overrides(tags: dict[str, str]) -> list[str]:
+    """spacetrack.train overrides that make a detector run with these `model` and `enhance` tags."""
+    out = []
+    if tags["model"] == "after_sppf":
+        out.append("model=yolov5s_gam")
+    elif tags["model"] != "none":
+        out += ["model=yolov5s_gam", f"model.gam_position={tags['model']}"]
+    if tags["enhance"] != "none":
+        out.append(f"enhance={tags['enhance']}")
+    return out
+
+
 def resolve_weights(cfg: DictConfig) -> Weights:
     """Paths from the config, or the fold's newest training runs in MLflow when a path is null."""
     dataset = Path(cfg.dataset).name
@@ -55,7 +67,7 @@ def resolve_weights(cfg: DictConfig) -> Weights:
                 fold=cfg.fold,
                 dataset=dataset,
                 artifact="weights/best.pt",
-                make_command=f"make train FOLD={cfg.fold}",
+                train=("spacetrack.train", [f"fold={cfg.fold}", *_model_overrides(tags)]),
                 tags=tags,
                 tracking_uri=cfg.logger.tracking_uri,
             )
@@ -67,7 +79,7 @@ def resolve_weights(cfg: DictConfig) -> Weights:
             fold=cfg.fold,
             dataset=dataset,
             artifact="weights/reid.pt",
-            make_command=f"make train-reid FOLD={cfg.fold}",
+            train=("spacetrack.train_reid", [f"fold={cfg.fold}"]),
             tracking_uri=cfg.logger.tracking_uri,
         )
     for what, path in (("detector", detector), ("re-ID", None if reid == NO_REID else reid)):

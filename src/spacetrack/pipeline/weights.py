@@ -15,7 +15,26 @@ from spacetrack.mlflow_log import tracking_uri as resolve_uri
 
 
 class MissingWeightsError(FileNotFoundError):
-    """No trained weights for what was asked; the message names the command that trains them."""
+    """No trained weights for what was asked; the message names the command that trains them.
+
+    `train` is that command as (module, overrides): `python -m <module> <overrides...>` trains them.
+    """
+
+    def __init__(self, message: str, train: tuple[str, list[str]] | None = None) -> None:
+        super().__init__(message)
+        self.train = train
+
+
+def train_command(module: str, overrides: list[str]) -> str:
+    """The make target that runs `python -m module overrides` (fold=K becomes FOLD=K)."""
+    target = {"spacetrack.train": "train", "spacetrack.train_reid": "train-reid"}[module]
+    fold = [o.split("=", 1)[1] for o in overrides if o.startswith("fold=")]
+    rest = [o for o in overrides if not o.startswith("fold=")]
+    return (
+        f"make {target}"
+        + (f" FOLD={fold[0]}" if fold else "")
+        + (f' ARGS="{" ".join(rest)}"' if rest else "")
+    )
 
 
 def fold_artifact(
@@ -24,13 +43,14 @@ def fold_artifact(
     fold: int,
     dataset: str,
     artifact: str,
-    make_command: str,
+    train: tuple[str, list[str]],
     tags: dict[str, str] | None = None,
     tracking_uri: str | None = None,
 ) -> Path:
     """Local path of `artifact` of the newest FINISHED run of `experiment` for `fold` on `dataset`.
 
     tags: further tags the run must carry (e.g. {"model": "after_sppf", "enhance": "dwt_hsv"}).
+    train: (module, overrides) of the command that makes such a run, named in the error when none is found.
     """
     uri = resolve_uri(tracking_uri)
     client = mlflow.MlflowClient(tracking_uri=uri)
@@ -55,5 +75,6 @@ def fold_artifact(
     described = ", ".join(f"{k}={v}" for k, v in wanted.items())
     raise MissingWeightsError(
         f"no trained weights for fold {fold} of {dataset} ({described}) in MLflow experiment "
-        f"{experiment!r} on {uri}: make them with `{make_command}`, or give the path in the config"
+        f"{experiment!r} on {uri}: make them with `{train_command(*train)}`, or give the path in the config",
+        train=train,
     )

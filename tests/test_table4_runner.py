@@ -1,0 +1,63 @@
+"""The Table 4 runner trains a piece's missing models when asked to, and only then."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+
+import pytest
+
+from spacetrack.config import REPO_ROOT
+from spacetrack.pipeline.weights import MissingWeightsError
+
+spec = importlib.util.spec_from_file_location("table4_run", REPO_ROOT / "experiments/table4_mota/run.py")
+table4 = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(table4)
+
+
+@pytest.fixture
+def fake_world(monkeypatch):
+    """run_piece finds a detector only once one was trained, then a re-ID network the same way."""
+    trained, commands = set(), []
+
+    def run_piece(row, fold, common):
+        for module, overrides in (("spacetrack.train", [f"fold={fold}", "model=yolov5s_gam"]),
+                                  ("spacetrack.train_reid", [f"fold={fold}"])):  # fmt: skip
+            if module not in trained:
+                raise MissingWeightsError(f"no {module} for fold {fold}", train=(module, overrides))
+        return {"row": row, "fold": fold, "metrics": {"mota": 0.5}}
+
+    def run(command, cwd, check):
+        commands.append(command[1:])
+        trained.add(command[2])
+        return subprocess.CompletedProcess(command, 0)
+
+    monkeypatch.setattr(table4, "run_piece", run_piece)
+    monkeypatch.setattr(table4.subprocess, "run", run)
+    return commands
+
+
+def test_missing_models_are_trained_with_the_extra_arguments_then_the_piece_runs(fake_world):
+    extra = {"spacetrack.train": ["train.threads=1"], "spacetrack.train_reid": ["train_reid.threads=1"]}
+    record = table4.run_with_models("gam_deepsort_paper", 2, [], extra)
+    assert record["metrics"]["mota"] == 0.5
+    assert fake_world == [
+        ["-m", "spacetrack.train", "fold=2", "model=yolov5s_gam", "train.threads=1"],
+        ["-m", "spacetrack.train_reid", "fold=2", "train_reid.threads=1"],
+    ]
+
+
+def test_without_train_a_missing_model_is_an_error_and_nothing_trains(fake_world):
+    with pytest.raises(MissingWeightsError, match="no spacetrack.train for fold 2"):
+        table4.run_with_models("gam_deepsort_paper", 2, [], None)
+    assert fake_world == []
+
+
+def test_a_model_still_missing_after_its_training_stops_the_runner(monkeypatch, fake_world):
+    def never_found(row, fold, common):
+        raise MissingWeightsError("still none", train=("spacetrack.train", [f"fold={fold}"]))
+
+    monkeypatch.setattr(table4, "run_piece", never_found)
+    with pytest.raises(RuntimeError, match="still not found"):
+        table4.run_with_models("yolo_sort", 1, [], {})
+    assert len(fake_world) == 1
