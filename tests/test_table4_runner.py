@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import subprocess
 
 import pytest
@@ -61,3 +62,60 @@ def test_a_model_still_missing_after_its_training_stops_the_runner(monkeypatch, 
     with pytest.raises(RuntimeError, match="still not found"):
         table4.run_with_models("yolo_sort", 1, [], {})
     assert len(fake_world) == 1
+
+
+def test_settings_hash_ignores_fold_output_and_speed_but_not_what_changes_numbers():
+    base = table4.settings_hash(table4.piece_overrides("gt_sort", 0, []))
+    same = table4.piece_overrides("gt_sort", 5, ["threads=1", "motion.parallel=true", "reid.threads=2"])
+    assert table4.settings_hash(same) == base
+    for change in (
+        "tracker.max_age=5",
+        "motion.hull_margin=null",
+        "dynamic.min_overlap=0.5",
+        "iou_threshold=0.3",
+    ):
+        assert table4.settings_hash(table4.piece_overrides("gt_sort", 0, [change])) != base, change
+    assert table4.settings_hash(table4.piece_overrides("gt_deepsort_paper", 0, [])) != base
+
+
+@pytest.fixture
+def results_dir(tmp_path, monkeypatch):
+    """The runner's results and tables under tmp_path, pieces 'tracked' by a stub that counts its calls."""
+    calls = []
+
+    def run_piece(row, fold, common):
+        calls.append((row, fold))
+        overrides = table4.piece_overrides(row, fold, common)
+        metrics = {m: 0.5 for m in table4.SHOWN}
+        return {"row": row, "fold": fold, "metrics": metrics, "settings": table4.settings_hash(overrides),
+                "command": "python -m spacetrack.track " + " ".join(overrides), "profile": "CPU"}  # fmt: skip
+
+    monkeypatch.setattr(table4, "run_piece", run_piece)
+    monkeypatch.setattr(table4, "HERE", tmp_path)
+    monkeypatch.setattr(table4, "RESULTS", tmp_path / "results")
+    return tmp_path, calls
+
+
+def _main(monkeypatch, *argv):
+    monkeypatch.setattr(table4.sys, "argv", ["run.py", *argv])
+    table4.main()
+
+
+def test_current_pieces_are_kept_stale_ones_recomputed_and_starred_until_then(results_dir, monkeypatch):
+    root, calls = results_dir
+    _main(monkeypatch, "--rows", "gt_sort", "--folds", "0-1")
+    assert calls == [("gt_sort", 0), ("gt_sort", 1)]
+    _main(monkeypatch, "--rows", "gt_sort", "--folds", "0-1")
+    assert len(calls) == 2  # both current: nothing recomputed
+    old = root / "results/gt_sort/fold1.json"
+    record = json.loads(old.read_text())
+    record["settings"] = "made-by-older-settings"
+    old.write_text(json.dumps(record))
+    table4.write_tables()
+    table = (root / "table4.md").read_text()
+    assert "| 50.0 | 50.0* |" in table and "1 cells were made with other settings" in table
+    _main(monkeypatch, "--rows", "gt_sort", "--folds", "0-1")
+    assert calls[2:] == [("gt_sort", 1)]
+    assert "*" not in (root / "table4.md").read_text().split("Commands per row")[0]
+    _main(monkeypatch, "--rows", "gt_sort", "--folds", "0", "--redo")
+    assert calls[3:] == [("gt_sort", 0)]

@@ -29,13 +29,14 @@ HERE = Path(__file__).resolve().parent
 # name -> (what changes, keys of conf/motion/fusion.yaml to override)
 VARIANTS: dict[str, tuple[str, dict]] = {
     "fusion": ("as configured", {}),
+    "whole": ("regions kept whole (no hull cut)", {"hull_margin": None}),
+    "hull6": ("hull cut grown by 6 px", {"hull_margin": 6}),
+    "cut_all": ("hull cut however sparse the difference", {"hull_min_fill": 0.0}),
     "thin": ("3 px filters instead of 5", {"blur_ksize": 3, "close_ksize": 3, "final_ksize": 3}),
-    "no_final": ("no last Gaussian filter", {"final_ksize": 1}),
     "level160": ("re-binarise at 160 (shrinks masks)", {"blur_level": 160}),
     "radius8": ("ViBe radius 8", {"background": {"radius": 8}}),
     "absorb30": ("ViBe absorbs after 30 frames", {"background": {"absorb_after": 30}}),
     "absorb_fast": ("absorbed pixels update every 4th frame", {"background": {"absorb_subsampling": 4}}),
-    "absorb_now": ("absorbed pixels update every frame", {"background": {"absorb_subsampling": 1}}),
 }  # fmt: skip
 PEERS = ("vibe", "knn")
 

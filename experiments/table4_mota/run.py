@@ -10,7 +10,10 @@ fold has no trained detector or re-ID is skipped with the command that trains it
 exists. With `--train` the missing model is trained there and then (that same command, plus the
 `--detector-args` or `--reid-args` overrides) and the piece runs after it: one command fills whole
 folds, and being killed loses at most the model in training (finished training runs are in MLflow and
-found the next time). Pieces already done are never recomputed (delete their JSON to redo one).
+found the next time). A piece already done is recomputed only when it is stale: when the settings that
+change its numbers (`settings_hash`: data, enhancement, detector, re-ID, tracker, motion stage,
+dynamic filter, scoring) differ from those it was made with; `--redo` recomputes the pieces asked for
+anyway (after a change of code rather than of settings). Stale cells are starred in `table4.md`.
 
     python experiments/table4_mota/run.py --folds 1 --train --commit threads=1 \
         --detector-args "train.threads=1" --reid-args "train_reid.threads=1"
@@ -28,9 +31,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from omegaconf import DictConfig, OmegaConf
 
-from spacetrack.config import REPO_ROOT, compose_config
+from spacetrack.config import REPO_ROOT, compose_config, resolved_dict
 from spacetrack.io import atomic_write_text
+from spacetrack.pipeline.cache import config_hash
 from spacetrack.pipeline.weights import MissingWeightsError
 
 HERE = Path(__file__).resolve().parent
@@ -54,6 +59,10 @@ ROWS: dict[str, tuple[str, list[str]]] = {
     "gt_sort_nofilter": ("ground-truth boxes, SORT, no dynamic-target filter", GT + ["tracker=sort", "reid.weights=none"] + NOFILTER),
 }  # fmt: skip
 SHOWN = ("mota", "idf1", "motp", "idsw", "fp", "fn")
+# The parts of conf/track.yaml that change a piece's numbers, and keys within them that change only speed.
+RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic",
+               "dynamic_filter", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
+SPEED_ONLY = frozenset({"device", "threads", "onnx_dir", "parallel", "batch_size"})
 
 
 def folds_arg(text: str) -> list[int]:
@@ -64,11 +73,9 @@ def folds_arg(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
-def run_piece(row: str, fold: int, common: list[str]) -> dict:
-    """Track fold `fold` with row `row`'s settings; the metrics and what made them."""
-    from spacetrack import track
-
-    overrides = (
+def piece_overrides(row: str, fold: int, common: list[str]) -> list[str]:
+    """conf/track.yaml overrides that track fold `fold` with row `row`'s settings."""
+    return (
         ROWS[row][1]
         + common
         + [
@@ -79,12 +86,38 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
             "logger.experiment=table4_mota",
         ]
     )
+
+
+def settings_hash(overrides: list[str]) -> str:
+    """Hash of what in the track config with `overrides` changes the numbers: not the fold (a piece's
+    own), nor where it writes, nor the keys that change only speed."""
+    cfg = compose_config("track", overrides)
+
+    def strip(value: object) -> object:
+        if isinstance(value, dict):
+            return {k: strip(v) for k, v in value.items() if k not in SPEED_ONLY}
+        return value
+
+    def section(key: str) -> object:
+        value = OmegaConf.select(cfg, key)
+        return strip(resolved_dict(value)) if isinstance(value, DictConfig) else value
+
+    return config_hash({key: section(key) for key in RESULT_KEYS})
+
+
+def run_piece(row: str, fold: int, common: list[str]) -> dict:
+    """Track fold `fold` with row `row`'s settings; the metrics and what made them."""
+    from spacetrack import track
+
+    overrides = piece_overrides(row, fold, common)
     started = time.time()
     metrics = track.run(compose_config("track", overrides))
     return {
         "row": row,
         "fold": fold,
         "metrics": metrics,
+        "settings": settings_hash(overrides),
+        "code": _git("rev-parse", "--short", "HEAD"),
         "overrides": overrides,
         "command": "python -m spacetrack.track " + " ".join(overrides),
         "seconds": time.time() - started,
@@ -134,9 +167,17 @@ def _command_template(record: dict) -> str:
     return record["command"].replace(f"fold={k}", "fold=K").replace(f"/fold{k}", "/foldK")
 
 
-def write_tables(num_folds: int = 9) -> list[Path]:
-    """table4.md and table4.json from every result present; returns their paths."""
+def write_tables(num_folds: int = 9, common: list[str] | None = None) -> list[Path]:
+    """table4.md and table4.json from every result present; returns their paths. A cell made with other
+    settings than the current config with `common` overrides gives (`settings_hash`) is starred."""
     results = load_results()
+    current = {row: settings_hash(piece_overrides(row, 0, common or [])) for row in results if row in ROWS}
+    stale = {
+        (row, k)
+        for row, done in results.items()
+        for k, r in done.items()
+        if r.get("settings") != current.get(row)
+    }
     summary = {}
     lines = [
         "# Table 4: MOTA per validation fold",
@@ -155,7 +196,12 @@ def write_tables(num_folds: int = 9) -> list[Path]:
         if not done:
             continue
         mota = [done[k]["metrics"]["mota"] for k in sorted(done)]
-        cells = [f"{100 * done[k]['metrics']['mota']:.1f}" if k in done else "-" for k in range(num_folds)]
+        cells = [
+            f"{100 * done[k]['metrics']['mota']:.1f}" + ("*" if (row, k) in stale else "")
+            if k in done
+            else "-"
+            for k in range(num_folds)
+        ]
         totals = {m: sum(d["metrics"][m] for d in done.values()) for m in ("idsw", "fp", "fn")}
         idf1 = float(np.mean([d["metrics"]["idf1"] for d in done.values()]))
         summary[row] = {
@@ -173,7 +219,13 @@ def write_tables(num_folds: int = 9) -> list[Path]:
             + f" | {100 * np.mean(mota):.1f} ± {100 * np.std(mota):.1f} ({len(mota)} folds) | {100 * idf1:.1f}"
             + f" | {totals['idsw']:.0f} | {totals['fp']:.0f} | {totals['fn']:.0f} |"
         )  # fmt: skip
-    lines += ["", "MOTA and IDF1 in %; IDSW, FP and FN summed over the folds shown. Commands per row:", ""]
+    lines += ["", "MOTA and IDF1 in %; IDSW, FP and FN summed over the folds shown."]
+    if stale:
+        lines += [
+            f"*: {len(stale)} cells were made with other settings than the current config; "
+            "`python experiments/table4_mota/run.py` recomputes them."
+        ]
+    lines += ["", "Commands per row:", ""]
     lines += [f"- `{row}`: `{s['command']}` ({s['profile']})" for row, s in summary.items()]
     md, js = HERE / "table4.md", HERE / "table4.json"
     atomic_write_text(md, "\n".join(lines) + "\n")
@@ -204,6 +256,7 @@ def main() -> None:
     parser.add_argument("--rows", default=",".join(ROWS), help="comma-separated rows (default: all)")
     parser.add_argument("--folds", default="0-8", help="'0-8' or '1,3'")
     parser.add_argument("--commit", action="store_true", help="git-commit each finished piece's files")
+    parser.add_argument("--redo", action="store_true", help="recompute pieces already done and current")
     parser.add_argument("--train", action="store_true", help="train a piece's missing models, then run it")
     parser.add_argument("--detector-args", default="", help="extra overrides for detector training")
     parser.add_argument("--reid-args", default="", help="extra overrides for re-ID training")
@@ -218,10 +271,16 @@ def main() -> None:
                       "spacetrack.train_reid": args.reid_args.split()}  # fmt: skip
     missing = []
     for row in args.rows.split(","):
+        current = settings_hash(piece_overrides(row, 0, args.overrides))
         for fold in folds_arg(args.folds):
             path = RESULTS / row / f"fold{fold}.json"
-            if path.is_file():
-                continue
+            if path.is_file() and not args.redo:
+                made_with = json.loads(path.read_text()).get("settings")
+                if made_with == current:
+                    continue
+                print(
+                    f"{row} fold {fold} is stale (settings {made_with} -> {current}): recomputing", flush=True
+                )
             try:
                 record = run_with_models(row, fold, args.overrides, train_args)
             except MissingWeightsError as err:
@@ -230,11 +289,11 @@ def main() -> None:
                 continue
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, json.dumps(record, indent=2) + "\n")
-            tables = write_tables()
+            tables = write_tables(common=args.overrides)
             print(f"{row} fold {fold}: MOTA {record['metrics']['mota']:.4f}", flush=True)
             if args.commit:
                 commit([path, *tables], f"Table 4: {row}, fold {fold}")
-    write_tables()
+    write_tables(common=args.overrides)
     if missing:
         print(f"{len(missing)} pieces wait for trained models:\n" + "\n".join(missing))
 

@@ -39,17 +39,41 @@ def fill_regions(mask: np.ndarray, *, min_area: float = 0.0) -> np.ndarray:
 
 
 def confirmed_regions(
-    body: np.ndarray, evidence: np.ndarray, *, min_area: float = 0.0, min_support: int = 1
+    body: np.ndarray,
+    evidence: np.ndarray,
+    *,
+    min_area: float = 0.0,
+    min_support: int = 1,
+    hull_margin: int | None = None,
+    hull_min_fill: float = 0.0,
 ) -> np.ndarray:
     """The regions of `body` (0/255, holes filled) holding >= `min_support` pixels of `evidence`: an 'and'
-    of regions instead of pixels. Regions enclosing < `min_area` px² are dropped."""
-    kept = []
+    of regions instead of pixels. Regions enclosing < `min_area` px² are dropped.
+
+    With `hull_margin` (pixels), a kept region is cut down to the convex hull of its evidence pixels grown
+    by that margin: the part of a region that the evidence does not reach (a background model's ghost
+    where a target stood when the model started, joined to the target that has just left it) goes. Only
+    regions whose evidence pixels fill at least `hull_min_fill` (0-1) of them are cut: sparse evidence (a
+    dim target's few changing pixels) spans too small a hull.
+    """
+    out = np.zeros_like(body)
     for contour in outlines(body, min_area=min_area):
         x, y, w, h = cv2.boundingRect(contour)
         region = cv2.drawContours(np.zeros((h, w), np.uint8), [contour], -1, 255, cv2.FILLED, offset=(-x, -y))
-        if cv2.countNonZero(cv2.bitwise_and(region, evidence[y : y + h, x : x + w])) >= min_support:
-            kept.append(contour)
-    return cv2.drawContours(np.zeros_like(body), kept, -1, 255, thickness=cv2.FILLED)
+        support = cv2.bitwise_and(region, evidence[y : y + h, x : x + w])
+        found = cv2.countNonZero(support)
+        if found < min_support:
+            continue
+        if hull_margin is not None and found >= hull_min_fill * cv2.countNonZero(region):
+            hull = cv2.convexHull(cv2.findNonZero(support))
+            reach = cv2.fillConvexPoly(np.zeros_like(region), hull, 255)
+            if hull_margin > 0:
+                size = 2 * hull_margin + 1
+                reach = cv2.dilate(reach, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+            region = cv2.bitwise_and(region, reach)
+        view = out[y : y + h, x : x + w]
+        cv2.bitwise_or(view, region, dst=view)
+    return out
 
 
 class Fusion:
@@ -68,6 +92,9 @@ class Fusion:
             slow target's difference mask is an outline with a hollow middle; the pixel 'and' keeps only
             the outline, the region 'and' the body around it.
         min_support: difference pixels a region needs in "region" mode.
+        hull_margin: "region" mode: cut each kept region down to the convex hull of the difference's pixels
+            in it, grown by this many pixels; None keeps regions whole.
+        hull_min_fill: cut only regions whose difference pixels fill at least this share (0-1) of them.
         parallel: run the difference (and the filtering of its mask) in a worker thread while the calling
             thread runs the background model, so the two use two cores; the masks are the same either way.
     """
@@ -84,6 +111,8 @@ class Fusion:
         final_ksize: int = 5,
         combine: str = "region",
         min_support: int = 3,
+        hull_margin: int | None = None,
+        hull_min_fill: float = 0.0,
         parallel: bool = False,
     ) -> None:
         if combine not in ("pixel", "region"):
@@ -100,6 +129,12 @@ class Fusion:
         self.final_ksize = final_ksize
         self.combine = combine
         self.min_support = min_support
+        if hull_margin is not None and hull_margin < 0:
+            raise ValueError(f"hull_margin must be >= 0 pixels or None, got {hull_margin}")
+        self.hull_margin = hull_margin
+        if not 0.0 <= hull_min_fill <= 1.0:
+            raise ValueError(f"hull_min_fill must be a share in [0, 1], got {hull_min_fill}")
+        self.hull_min_fill = hull_min_fill
         self.parallel = parallel
         self._worker: ThreadPoolExecutor | None = None
         self.latency = max(difference.latency, background.latency)
@@ -145,7 +180,14 @@ class Fusion:
         if self.combine == "pixel":
             fused = fill_regions(cv2.bitwise_and(a, b), min_area=self.min_area)
         else:
-            fused = confirmed_regions(b, a, min_area=self.min_area, min_support=self.min_support)
+            fused = confirmed_regions(
+                b,
+                a,
+                min_area=self.min_area,
+                min_support=self.min_support,
+                hull_margin=self.hull_margin,
+                hull_min_fill=self.hull_min_fill,
+            )
         fused = _smooth(fused, self.final_ksize, 127)
         self.blobs = find_blobs(fused, min_area=self.min_area)
         return fused
