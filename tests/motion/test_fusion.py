@@ -1,8 +1,9 @@
+import cv2
 import numpy as np
 import pytest
 
 from spacetrack.motion import KNN, MOG2, FiveFrameDifference, Fusion, ViBe
-from spacetrack.motion.fusion import confirmed_regions, fill_regions
+from spacetrack.motion.fusion import confirmed_regions, fill_regions, filled_hull
 
 
 def _fusion(**kwargs) -> Fusion:
@@ -99,6 +100,20 @@ def test_confirmed_regions_cut_to_the_hull_of_dense_evidence_only():
     whole = confirmed_regions(body, evidence)
     assert (whole == body).all()
     assert (confirmed_regions(body, evidence, hull_margin=2, hull_min_fill=0.3) == whole).all()  # sparse
+
+
+def test_filled_hull_from_row_ends_is_the_hull_of_every_pixel():
+    rng = np.random.default_rng(3)
+    for density in (0.002, 0.05, 0.5):
+        mask = np.where(rng.random((40, 60)) < density, 255, 0).astype(np.uint8)
+        mask[rng.integers(40), rng.integers(60)] = 255  # never empty
+        every = cv2.fillConvexPoly(np.zeros_like(mask), cv2.convexHull(cv2.findNonZero(mask)), 255)
+        assert np.array_equal(filled_hull(mask), every)
+    line = np.zeros((9, 9), np.uint8)
+    line[4, 2:7] = 255  # one row: a segment, grown into a rounded bar
+    grown = filled_hull(line, 2)
+    assert grown[4].all() and grown[2:7, 2:7].all()  # 2 px on every side of the segment
+    assert not grown[:2].any() and not grown[7:].any() and not grown[2, :2].any()  # and no further; rounded
 
 
 def test_hull_cut_drops_the_start_up_ghost_joined_to_a_target(scene):

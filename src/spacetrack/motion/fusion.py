@@ -38,6 +38,21 @@ def fill_regions(mask: np.ndarray, *, min_area: float = 0.0) -> np.ndarray:
     return cv2.drawContours(np.zeros_like(mask), kept, -1, 255, thickness=cv2.FILLED)
 
 
+def filled_hull(mask: np.ndarray, margin: int = 0) -> np.ndarray:
+    """0/255 mask of the convex hull of the non-zero pixels of `mask`, grown by `margin` pixels (a dilation
+    by a disk). Only each row's first and last pixel can be a vertex, so the hull is taken of those."""
+    on = mask > 0
+    rows = np.flatnonzero(on.any(axis=1))
+    first = on[rows].argmax(axis=1)
+    last = on.shape[1] - 1 - on[rows, ::-1].argmax(axis=1)
+    ends = np.concatenate([np.stack([first, rows], axis=1), np.stack([last, rows], axis=1)])
+    filled = cv2.fillConvexPoly(np.zeros_like(mask), cv2.convexHull(ends.astype(np.int32)), 255)
+    if margin > 0:
+        size = 2 * margin + 1
+        filled = cv2.dilate(filled, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+    return filled
+
+
 def confirmed_regions(
     body: np.ndarray,
     evidence: np.ndarray,
@@ -65,12 +80,7 @@ def confirmed_regions(
         if found < min_support:
             continue
         if hull_margin is not None and found >= hull_min_fill * cv2.countNonZero(region):
-            hull = cv2.convexHull(cv2.findNonZero(support))
-            reach = cv2.fillConvexPoly(np.zeros_like(region), hull, 255)
-            if hull_margin > 0:
-                size = 2 * hull_margin + 1
-                reach = cv2.dilate(reach, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
-            region = cv2.bitwise_and(region, reach)
+            region = cv2.bitwise_and(region, filled_hull(support, hull_margin))
         view = out[y : y + h, x : x + w]
         cv2.bitwise_or(view, region, dst=view)
     return out
