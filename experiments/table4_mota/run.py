@@ -118,6 +118,8 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
         "metrics": metrics,
         "settings": settings_hash(overrides),
         "code": _git("rev-parse", "--short", "HEAD"),
+        # code and settings files that differed from that commit when the piece ran
+        "changed": _git("diff", "--name-only", "HEAD", "--", "src", "conf").split(),
         "overrides": overrides,
         "command": "python -m spacetrack.track " + " ".join(overrides),
         "seconds": time.time() - started,

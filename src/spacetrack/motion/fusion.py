@@ -121,8 +121,8 @@ class Fusion:
         final_ksize: int = 5,
         combine: str = "region",
         min_support: int = 3,
-        hull_margin: int | None = None,
-        hull_min_fill: float = 0.0,
+        hull_margin: int | None = 10,
+        hull_min_fill: float = 0.3,
         parallel: bool = False,
     ) -> None:
         if combine not in ("pixel", "region"):
