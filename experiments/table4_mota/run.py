@@ -169,11 +169,16 @@ def _command_template(record: dict) -> str:
     return record["command"].replace(f"fold={k}", "fold=K").replace(f"/fold{k}", "/foldK")
 
 
-def write_tables(num_folds: int = 9, common: list[str] | None = None) -> list[Path]:
+def current_settings(common: list[str]) -> dict[str, str]:
+    """{row: `settings_hash` of its pieces under the current config with `common` overrides}."""
+    return {row: settings_hash(piece_overrides(row, 0, common)) for row in ROWS}
+
+
+def write_tables(num_folds: int = 9, current: dict[str, str] | None = None) -> list[Path]:
     """table4.md and table4.json from every result present; returns their paths. A cell made with other
-    settings than the current config with `common` overrides gives (`settings_hash`) is starred."""
+    settings than `current` (default: `current_settings([])`) is starred."""
     results = load_results()
-    current = {row: settings_hash(piece_overrides(row, 0, common or [])) for row in results if row in ROWS}
+    current = current_settings([]) if current is None else current
     stale = {
         (row, k)
         for row, done in results.items()
@@ -272,8 +277,9 @@ def main() -> None:
         train_args = {"spacetrack.train": args.detector_args.split(),
                       "spacetrack.train_reid": args.reid_args.split()}  # fmt: skip
     missing = []
+    settings = current_settings(args.overrides)  # composed once, not after every piece
     for row in args.rows.split(","):
-        current = settings_hash(piece_overrides(row, 0, args.overrides))
+        current = settings[row]
         for fold in folds_arg(args.folds):
             path = RESULTS / row / f"fold{fold}.json"
             if path.is_file() and not args.redo:
@@ -291,11 +297,11 @@ def main() -> None:
                 continue
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, json.dumps(record, indent=2) + "\n")
-            tables = write_tables(common=args.overrides)
+            tables = write_tables(current=settings)
             print(f"{row} fold {fold}: MOTA {record['metrics']['mota']:.4f}", flush=True)
             if args.commit:
                 commit([path, *tables], f"Table 4: {row}, fold {fold}")
-    write_tables(common=args.overrides)
+    write_tables(current=settings)
     if missing:
         print(f"{len(missing)} pieces wait for trained models:\n" + "\n".join(missing))
 
