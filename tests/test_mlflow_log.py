@@ -141,6 +141,48 @@ def test_failing_block_marks_run_failed_and_ctrl_c_killed(config_dir: Path, stor
     }
 
 
+def test_sigterm_inside_a_run_marks_it_killed_and_restores_the_handler(config_dir: Path, store: str) -> None:
+    cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=terminated")
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(mlflow_log.Terminated), mlflow_log.start_run(cfg, run_name="stopped"):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises long before this ends
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert mlflow.active_run() is None
+    assert [(r.info.run_name, r.info.status) for r in runs_of("terminated")] == [("stopped", "KILLED")]
+
+
+def test_continuing_a_run_reopens_it_without_touching_its_params(
+    config_dir: Path, store: str, tmp_path: Path
+) -> None:
+    cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=continued")
+    with pytest.raises(KeyboardInterrupt), mlflow_log.start_run(cfg, run_name="long") as first:
+        mlflow_log.log_metrics_step({"loss": 1.0}, 0)
+        raise KeyboardInterrupt
+    changed = make_cfg(
+        config_dir, f"logger.tracking_uri={store}", "logger.experiment=continued", "model.lr=0.5"
+    )
+    with mlflow_log.start_run(changed, run_name="ignored", continue_run_id=first.info.run_id) as second:
+        mlflow_log.log_metrics_step({"loss": 0.5}, 1)
+    assert second.info.run_id == first.info.run_id
+    client = mlflow.MlflowClient()
+    run = client.get_run(first.info.run_id)
+    assert (run.info.status, run.info.run_name) == ("FINISHED", "long")
+    assert run.data.params["model.lr"] == "0.01"  # as first logged; the resume's config is an artifact
+    assert run.data.tags["resumes"] == "1"
+    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"config.yaml", "config_resume1.yaml"}
+    resumed = Path(
+        client.download_artifacts(run.info.run_id, "config_resume1.yaml", str(tmp_path))
+    ).read_text()
+    assert "lr: 0.5" in resumed
+    assert [m.value for m in client.get_metric_history(run.info.run_id, "loss")] == [1.0, 0.5]
+    # An id this store does not have (a checkpoint made elsewhere) starts a new run.
+    with mlflow_log.start_run(cfg, run_name="fresh", continue_run_id="0" * 32) as third:
+        pass
+    assert third.info.run_id != first.info.run_id
+    assert client.get_run(third.info.run_id).data.params["model.lr"] == "0.01"
+
+
 def test_missing_artifact_file_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="nope.png"):
         mlflow_log.log_artifact_file(tmp_path / "nope.png")

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
+import threading
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -103,6 +105,37 @@ def _git_tags() -> dict[str, str]:
     return {GIT_COMMIT_TAG: commit, "git_dirty": str(bool(status.strip())).lower()}
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM inside a run (a scheduler or a closing session stopping the job): ends the run KILLED."""
+
+
+@contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """Turn SIGTERM into `Terminated` inside the block (main thread only; elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise Terminated(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def find_run(run_id: str | None) -> mlflow.entities.Run | None:
+    """The run `run_id` in the current tracking store, or None (no id, or a store that lacks it)."""
+    if not run_id:
+        return None
+    try:
+        return mlflow.MlflowClient().get_run(run_id)
+    except MlflowException:
+        return None
+
+
 @contextmanager
 def start_run(
     cfg: DictConfig,
@@ -111,12 +144,16 @@ def start_run(
     parent_run_id: str | None = None,
     nested: bool = False,
     tags: Mapping[str, str] | None = None,
+    continue_run_id: str | None = None,
 ) -> Iterator[mlflow.ActiveRun | None]:
     """Open an MLflow run for `cfg` and log its resolved config and git commit; yield the ActiveRun.
 
     Yields None and logs nothing when `cfg.logger.enabled` is false. With `parent_run_id` the run is a
     child of that run (a fold of a cross-validation); `nested=True` makes it a child of the active run.
-    The run ends FINISHED, FAILED when the block raises, or KILLED on Ctrl-C.
+    With `continue_run_id` (a resumed training) that run is reopened when this store has it: its params
+    stay as first logged, the new config goes to `config_resume<n>.yaml` and tag `resumes` counts; when
+    the store lacks it a new run starts. The run ends FINISHED, FAILED when the block raises, or KILLED
+    on Ctrl-C or SIGTERM.
     """
     if not cfg.logger.enabled:
         yield None
@@ -124,17 +161,30 @@ def start_run(
     uri = tracking_uri(cfg.logger.tracking_uri)
     mlflow.set_tracking_uri(uri)
     experiment_id = _experiment_id(str(cfg.logger.experiment), uri)
-    run = mlflow.start_run(
-        experiment_id=experiment_id,
-        run_name=run_name,
-        parent_run_id=parent_run_id,
-        nested=nested or parent_run_id is not None,
-        tags={**_git_tags(), **(tags or {})},
-    )
+    previous = find_run(continue_run_id)
+    if previous is not None and previous.info.experiment_id != experiment_id:
+        previous = None
+    config_text = OmegaConf.to_yaml(cfg, resolve=True)
+    if previous is not None:
+        resumes = int(previous.data.tags.get("resumes", "0")) + 1
+        run = mlflow.start_run(run_id=previous.info.run_id, nested=nested or parent_run_id is not None)
+    else:
+        run = mlflow.start_run(
+            experiment_id=experiment_id,
+            run_name=run_name,
+            parent_run_id=parent_run_id,
+            nested=nested or parent_run_id is not None,
+            tags={**_git_tags(), **(tags or {})},
+        )
     try:
-        mlflow.log_params(flatten_params(resolved_dict(cfg)))
-        mlflow.log_text(OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
-        yield run
+        with _sigterm_interrupts():
+            if previous is not None:
+                mlflow.set_tags({**_git_tags(), "resumes": str(resumes)})
+                mlflow.log_text(config_text, f"config_resume{resumes}.yaml")
+            else:
+                mlflow.log_params(flatten_params(resolved_dict(cfg)))
+                mlflow.log_text(config_text, "config.yaml")
+            yield run
     except KeyboardInterrupt:
         mlflow.end_run(RunStatus.to_string(RunStatus.KILLED))
         raise

@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from spacetrack.config import CONF_DIR, resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
+from spacetrack.engine.checkpoint import load_checkpoint
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
@@ -77,7 +78,15 @@ def run(cfg: DictConfig) -> dict[str, float]:
             write_png(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
 
     tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
-    with start_run(cfg, run_name=f"fold{cfg.fold}", parent_run_id=cfg.cv_parent_run_id, tags=tags):
+    # A resumed training continues the MLflow run that wrote its checkpoint (when this store has it).
+    earlier_run = load_checkpoint(cfg.resume).get("mlflow_run_id") if cfg.resume else None
+    with start_run(
+        cfg,
+        run_name=f"fold{cfg.fold}",
+        parent_run_id=cfg.cv_parent_run_id,
+        tags=tags,
+        continue_run_id=earlier_run,
+    ) as active:
         log_metrics_step(
             {
                 "parameters": count_parameters(model),
@@ -95,6 +104,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             resume_from=cfg.resume,
             run_settings=run_settings,
             on_epoch_end=on_epoch_end,
+            extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,
         )
         best = max(result["history"], key=lambda r: r["fitness"])
         summary = {k: float(best[k]) for k in REPORTED}

@@ -54,6 +54,20 @@ def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
         )
 
 
+def test_a_resumed_training_continues_its_mlflow_run(tiny_dataset, tmp_path):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    logged = ("logger=mlflow", f"logger.tracking_uri={uri}", "model.width_multiple=0.125", "fold=3")
+    run(config(tiny_dataset, tmp_path, *logged))
+    client = mlflow.MlflowClient(uri)
+    (first,) = client.search_runs([client.get_experiment_by_name("detector").experiment_id])
+    client.set_terminated(first.info.run_id, "KILLED")  # as if the job had been stopped
+    run(config(tiny_dataset, tmp_path, *logged, f"resume={tmp_path / 'run' / 'weights' / 'last.pt'}"))
+    (again,) = client.search_runs([first.info.experiment_id])
+    assert again.info.run_id == first.info.run_id
+    assert again.info.status == "FINISHED"
+    assert again.data.tags["resumes"] == "1"
+
+
 @pytest.mark.parametrize("fold", [-1, 9])
 def test_fold_outside_the_nine_is_refused(tiny_dataset, tmp_path, fold):
     with pytest.raises(ValueError, match=f"fold {fold} is outside 0..8"):

@@ -83,11 +83,13 @@ class Trainer:
         resume_from: str | Path | None = None,
         run_settings: dict[str, Any] | None = None,
         on_epoch_end: EpochCallback | None = None,
+        extra_state: dict[str, Any] | None = None,
     ) -> dict[str, Any]:
         """Train `model` in place; return `history`, `best_fitness` and the checkpoint paths.
 
         `run_settings` (data, image size, augmentation...) are stored with the trainer's settings; a
-        resume with any of them changed is refused.
+        resume with any of them changed is refused. `extra_state` (the MLflow run id) goes into every
+        checkpoint as it is.
         """
         device = resolve_device(self.device)
         model.to(device)
@@ -173,6 +175,7 @@ class Trainer:
                 "best_fitness": best,
                 "history": history,
                 "settings": settings,
+                **(extra_state or {}),
             }
             save_checkpoint(weights / "last.pt", state)
             if is_best:
