@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 
 import pytest
@@ -71,3 +72,68 @@ def test_fit_learns_a_toy_problem_deterministically() -> None:
     again, weight_again = toy_fit(0)
     assert again == stats
     torch.testing.assert_close(weight_again, weight, rtol=0, atol=0)
+
+
+class DropoutToy(nn.Module):
+    """Dropout draws from torch's global generator, which a resume must restore too."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.linear = nn.Linear(4, 3)
+        self.drop = nn.Dropout(0.3)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.normalize(self.linear(self.drop(x)), dim=1)
+
+
+def dropout_fit(epochs: int, *, resume: dict | None = None) -> tuple[list[dict], nn.Module]:
+    torch.manual_seed(0)
+    labels = torch.arange(60) % 3
+    x = F.one_hot(labels, 4).float() + 0.1 * torch.randn(60, 4)
+    loader = DataLoader(
+        TensorDataset(x, labels), batch_size=12, shuffle=True, generator=torch.Generator().manual_seed(0)
+    )
+    net, head = DropoutToy(), CosineSoftmax(feature_dim=3, num_classes=3)
+    states: list[dict] = []
+    fit(
+        net,
+        head,
+        loader,
+        epochs=epochs,
+        lr=0.05,
+        weight_decay=0.01,
+        warmup_epochs=1,
+        device=torch.device("cpu"),
+        save_state=lambda s: states.append(copy.deepcopy(s)),
+        resume_state=resume,
+    )
+    return states, net
+
+
+def test_a_resumed_fit_ends_where_an_unbroken_one_does() -> None:
+    states, net = dropout_fit(6)
+    assert [s["epoch"] for s in states] == list(range(6))
+    after, resumed = dropout_fit(6, resume=states[2])
+    assert [s["epoch"] for s in after] == [3, 4, 5]
+    torch.testing.assert_close(resumed.linear.weight, net.linear.weight, rtol=0, atol=0)
+    assert after[-1]["stats"] == states[-1]["stats"]
+    # Without the generators' states the same weights and optimiser give another result.
+    broken = {**states[2], "torch_rng": torch.random.default_generator.get_state()}
+    _, other = dropout_fit(6, resume=broken)
+    assert not torch.equal(other.linear.weight, net.linear.weight)
+
+
+def test_resuming_needs_a_loader_with_its_own_generator() -> None:
+    loader = DataLoader(TensorDataset(torch.zeros(4, 4), torch.zeros(4, dtype=torch.long)), batch_size=2)
+    with pytest.raises(ValueError, match="own generator"):
+        fit(
+            Toy(),
+            CosineSoftmax(feature_dim=3, num_classes=2),
+            loader,
+            epochs=1,
+            lr=0.1,
+            weight_decay=0.0,
+            warmup_epochs=0,
+            device=torch.device("cpu"),
+            save_state=lambda s: None,
+        )

@@ -6,11 +6,12 @@ import json
 
 import mlflow
 import numpy as np
+import pytest
 import torch
 
 from spacetrack.config import compose_config
 from spacetrack.mlflow_log import PARENT_RUN_TAG, cv_parent_summary, start_run
-from spacetrack.reid import Encoder
+from spacetrack.reid import Encoder, pipeline
 from spacetrack.train_reid import run
 
 
@@ -69,3 +70,57 @@ def test_fold_runs_are_children_of_the_cross_validation_parent(tiny_dataset, tmp
     }
     encoder = Encoder.from_mlflow(child.info.run_id, tracking_uri=uri, device="cpu")
     assert encoder(np.zeros((32, 32, 3), np.uint8), [[2, 2, 8, 8]]).shape == (1, 128)
+
+
+def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
+    tiny_dataset, tmp_path, monkeypatch
+) -> None:
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    base = overrides(
+        tiny_dataset, tmp_path / "out", "fold=1", "train_reid.epochs=3", f"logger.tracking_uri={uri}"
+    )
+    unbroken = run(compose_config("train_reid", [*base, "output_dir=" + str(tmp_path / "unbroken")]))
+
+    real_fit = pipeline.fit
+
+    def stop_after_two_epochs(*args, save_state, **kwargs):
+        def save_then_maybe_stop(state):
+            save_state(state)
+            if state["epoch"] == 1:
+                raise KeyboardInterrupt
+
+        return real_fit(*args, save_state=save_then_maybe_stop, **kwargs)
+
+    monkeypatch.setattr(pipeline, "fit", stop_after_two_epochs)
+    with pytest.raises(KeyboardInterrupt):
+        run(compose_config("train_reid", base))
+    monkeypatch.setattr(pipeline, "fit", real_fit)
+    fold = tmp_path / "out" / "fold1"
+    assert (fold / "last.pt").is_file() and not (fold / "reid.pt").exists()
+    with pytest.raises(ValueError, match=r"cannot resume .*last\.pt with other settings: .*lr"):
+        run(compose_config("train_reid", [*base, "resume=true", "train_reid.lr=0.01"]))
+
+    resumed = run(compose_config("train_reid", [*base, "resume=true"]))
+    assert resumed["rank1"] == unbroken["rank1"] and resumed["train_loss"] == unbroken["train_loss"]
+    a, b = (
+        torch.load(p / "fold1" / "reid.pt", weights_only=True)
+        for p in (tmp_path / "unbroken", tmp_path / "out")
+    )
+    for key, value in a["model"].items():
+        torch.testing.assert_close(b["model"][key], value, rtol=0, atol=0)
+    client = mlflow.MlflowClient(uri)
+    runs = client.search_runs([client.get_experiment_by_name("reid").experiment_id])
+    assert len(runs) == 2  # the unbroken run and the stopped-then-resumed one, not a third
+    (continued,) = [r for r in runs if r.data.tags.get("resumes") == "1"]
+    assert continued.info.status == "FINISHED"
+    assert [m.step for m in client.get_metric_history(continued.info.run_id, "train_loss")] == [0, 1, 2, 3]
+
+
+def test_resume_without_a_checkpoint_starts_afresh(tiny_dataset, tmp_path) -> None:
+    base = overrides(tiny_dataset, tmp_path / "a", "logger=none", "fold=1")
+    metrics = run(compose_config("train_reid", [*base, "resume=true"]))
+    assert (tmp_path / "a" / "fold1" / "last.pt").is_file()
+    assert 0.0 <= metrics["rank1"] <= 1.0
+    (tmp_path / "a" / "fold1" / "last.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match=r"last\.pt is not a readable re-ID training checkpoint"):
+        run(compose_config("train_reid", [*base, "resume=true"]))

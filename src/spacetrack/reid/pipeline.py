@@ -1,5 +1,9 @@
 """One re-ID fold end to end: crops of the eight training folds, training, evaluation on fold k's unseen
-identities, weights, metrics and the distance plot written to disk and logged to MLflow."""
+identities, weights, metrics and the distance plot written to disk and logged to MLflow.
+
+Every epoch leaves `last.pt` (the whole training state) in the fold's folder; `resume=true` goes on
+from it, in the same MLflow run, to the same weights as a training that was never stopped.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +17,10 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader
 
+from spacetrack.config import resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
-from spacetrack.io import atomic_write_text
+from spacetrack.engine.checkpoint import differences, save_checkpoint
+from spacetrack.io import atomic_write_text, load_torch_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.reid.crops import Cropper
 from spacetrack.reid.dataset import CropDataset, collect_crops, cut_crops, jitter_augment
@@ -24,9 +30,31 @@ from spacetrack.reid.loss import CosineSoftmax
 from spacetrack.reid.train import fit
 from spacetrack.reid.weights import save_weights
 
+# Settings that may differ on resume: they change the speed, not the numbers.
+RESUME_NEUTRAL = ("threads", "workers")
+CHECKPOINT_FORMAT = "spacetrack-reid-train-1"
+
 
 def _device(name: str) -> torch.device:
     return default_device() if name == "auto" else torch.device(name)
+
+
+def training_settings(cfg: DictConfig, fold: int) -> dict:
+    """What a resumed training must share with the one that wrote the checkpoint."""
+    train = {k: v for k, v in resolved_dict(cfg.train_reid).items() if k not in RESUME_NEUTRAL}
+    data = resolved_dict(OmegaConf.masked_copy(cfg, ["data", "model"]))
+    return {"fold": fold, "image_dir": cfg.image_dir, **data, "train_reid": train}
+
+
+def load_resume_state(path: Path, settings: dict) -> dict:
+    """The training state at `path`; refused when it is not one or was made with other settings."""
+    state = load_torch_file(path, "re-ID training checkpoint")
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path} is not a re-ID training checkpoint (expected format {CHECKPOINT_FORMAT!r})")
+    changed = differences(state["settings"], settings)
+    if changed:
+        raise ValueError(f"cannot resume {path} with other settings: {changed}")
+    return state
 
 
 def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) -> dict[str, float]:
@@ -71,7 +99,27 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
         generator=torch.Generator().manual_seed(t.seed),
     )
     head = CosineSoftmax(feature_dim=net.feature_dim, num_classes=len(train_table.names))
-    with start_run(cfg, run_name=f"fold{fold}", parent_run_id=parent_run_id, tags={"fold": str(fold)}):
+    settings = training_settings(cfg, fold)
+    checkpoint = out / "last.pt"
+    resume_state = None
+    if cfg.resume and checkpoint.is_file():
+        resume_state = load_resume_state(checkpoint, settings)
+        print(f"fold {fold}: resuming {checkpoint} after epoch {resume_state['epoch'] + 1}/{t.epochs}")
+    elif cfg.resume:
+        print(f"fold {fold}: no {checkpoint} to resume, starting afresh")
+    with start_run(
+        cfg,
+        run_name=f"fold{fold}",
+        parent_run_id=parent_run_id,
+        tags={"fold": str(fold)},
+        continue_run_id=resume_state and resume_state.get("mlflow_run_id"),
+    ) as active:
+        run_id = active.info.run_id if active is not None else None
+
+        def save_state(state: dict) -> None:
+            extra = {"format": CHECKPOINT_FORMAT, "settings": settings, "mlflow_run_id": run_id}
+            save_checkpoint(checkpoint, state | extra)
+
         sizes = {
             "train_identities": len(train_table.names),
             "train_crops": len(train_table),
@@ -99,6 +147,8 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
             warmup_epochs=t.warmup_epochs,
             device=device,
             on_epoch=on_epoch,
+            save_state=save_state,
+            resume_state=resume_state,
         )
         train_seconds = time.perf_counter() - started
         weights = out / "reid.pt"

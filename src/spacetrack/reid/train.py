@@ -1,13 +1,15 @@
 """The re-ID training loop: cosine-softmax identity classification, AdamW, linear warm-up then cosine decay.
 
 It knows the network only as a module that maps crops to unit features and the head as one that maps
-features to logits.
+features to logits. After every epoch it can hand out its whole state (weights, optimiser, the loader's
+and torch's random generators), and started from such a state it trains on exactly as if never stopped.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -34,16 +36,34 @@ def fit(
     warmup_epochs: float,
     device: torch.device,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+    save_state: Callable[[dict[str, Any]], None] | None = None,
+    resume_state: dict[str, Any] | None = None,
 ) -> dict[str, float]:
     """Train `net` and `head` for `epochs` over `loader` ((crops, identities) batches); returns the last
-    epoch's mean loss, accuracy, learning rate and softmax scale, also passed to `on_epoch(epoch, stats)`."""
+    epoch's mean loss, accuracy, learning rate and softmax scale, also passed to `on_epoch(epoch, stats)`.
+
+    After each epoch `save_state(state)` gets everything needed to go on; `resume_state` (such a state)
+    continues after its epoch. The loader must draw its order from its own `generator`.
+    """
     net.to(device).train()
     head.to(device).train()
     params = list(net.parameters()) + list(head.parameters())
     optimizer = torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
     total, warmup = epochs * len(loader), round(warmup_epochs * len(loader))
-    step, stats = 0, {}
-    for epoch in range(epochs):
+    if (save_state is not None or resume_state is not None) and loader.generator is None:
+        raise ValueError("a resumable re-ID training needs a DataLoader with its own generator")
+    start, stats = 0, {}
+    if resume_state is not None:
+        net.load_state_dict(resume_state["net"])
+        head.load_state_dict(resume_state["head"])
+        optimizer.load_state_dict(resume_state["optimizer"])
+        loader.generator.set_state(resume_state["loader_rng"])
+        torch.set_rng_state(resume_state["torch_rng"])
+        if device.type == "cuda" and resume_state.get("cuda_rng") is not None:
+            torch.cuda.set_rng_state(resume_state["cuda_rng"], device)
+        start, stats = resume_state["epoch"] + 1, dict(resume_state["stats"])
+    step = start * len(loader)
+    for epoch in range(start, epochs):
         if hasattr(loader.dataset, "epoch"):
             loader.dataset.epoch = epoch
         loss_sum, correct, seen = 0.0, 0, 0
@@ -68,6 +88,19 @@ def fit(
         }
         if on_epoch is not None:
             on_epoch(epoch, stats)
+        if save_state is not None:
+            save_state(
+                {
+                    "epoch": epoch,
+                    "net": net.state_dict(),
+                    "head": head.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "loader_rng": loader.generator.get_state(),
+                    "torch_rng": torch.get_rng_state(),
+                    "cuda_rng": torch.cuda.get_rng_state(device) if device.type == "cuda" else None,
+                    "stats": stats,
+                }
+            )
     net.eval()
     head.eval()
     return stats
