@@ -39,12 +39,13 @@ def fake_world(monkeypatch):
 
 
 def test_missing_models_are_trained_with_the_extra_arguments_then_the_piece_runs(fake_world):
+    # resume=...: a training stopped part-way by an earlier, killed runner goes on from its last epoch.
     extra = {"spacetrack.train": ["train.threads=1"], "spacetrack.train_reid": ["train_reid.threads=1"]}
     record = table4.run_with_models("gam_deepsort_paper", 2, [], extra)
     assert record["metrics"]["mota"] == 0.5
     assert fake_world == [
-        ["-m", "spacetrack.train", "fold=2", "model=yolov5s_gam", "train.threads=1"],
-        ["-m", "spacetrack.train_reid", "fold=2", "train_reid.threads=1"],
+        ["-m", "spacetrack.train", "fold=2", "model=yolov5s_gam", "resume=auto", "train.threads=1"],
+        ["-m", "spacetrack.train_reid", "fold=2", "resume=true", "train_reid.threads=1"],
     ]
 
 

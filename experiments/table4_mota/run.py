@@ -9,8 +9,9 @@ those files are committed at once, so a killed run loses at most the piece it wa
 fold has no trained detector or re-ID is skipped with the command that trains it; run again once it
 exists. With `--train` the missing model is trained there and then (that same command, plus the
 `--detector-args` or `--reid-args` overrides) and the piece runs after it: one command fills whole
-folds, and being killed loses at most the model in training (finished training runs are in MLflow and
-found the next time). A piece already done is recomputed only when it is stale: when the settings that
+folds, and being killed loses little: finished training runs are in MLflow and found the next time,
+and a training stopped part-way goes on from its last epoch (`resume=auto` for the detector,
+`resume=true` for the re-ID). A piece already done is recomputed only when it is stale: when the settings that
 change its numbers (`settings_hash`: data, enhancement, detector, re-ID, tracker, motion stage,
 dynamic filter, scoring) differ from those it was made with; `--redo` recomputes the pieces asked for
 anyway (after a change of code rather than of settings). Stale cells are starred in `table4.md`.
@@ -129,6 +130,10 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
     }
 
 
+# How each training module picks up a run that was stopped part-way (a no-op when there is none).
+RESUME = {"spacetrack.train": ["resume=auto"], "spacetrack.train_reid": ["resume=true"]}
+
+
 def run_with_models(row: str, fold: int, common: list[str], train_args: dict[str, list[str]] | None) -> dict:
     """`run_piece`; with `train_args` ({training module: extra overrides}) each missing model is first
     trained by the command its error names plus that module's extra overrides. Without, a missing model
@@ -146,7 +151,8 @@ def run_with_models(row: str, fold: int, common: list[str], train_args: dict[str
                     f"{module} {' '.join(overrides)} finished, but its run is still not found: {err}"
                 ) from err
             trained.append((module, overrides))
-            command = [sys.executable, "-m", module, *overrides, *train_args.get(module, [])]
+            resume = RESUME.get(module, [])
+            command = [sys.executable, "-m", module, *overrides, *resume, *train_args.get(module, [])]
             print("training: " + " ".join(command[1:]), flush=True)
             subprocess.run(command, cwd=REPO_ROOT, check=True)
 

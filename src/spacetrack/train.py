@@ -19,6 +19,7 @@ from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_
 from spacetrack.engine.checkpoint import load_checkpoint
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
+from spacetrack.engine.trainer import unfinished_checkpoint
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.models.yolo import count_parameters
 
@@ -35,7 +36,6 @@ def run(cfg: DictConfig) -> dict[str, float]:
         torch.set_num_threads(int(cfg.train.threads))
     enhancer = instantiate(cfg.enhance)
     image_dir, enhance_on_the_fly = image_source(root, train_names + val_names, enhancer.name)
-    out_dir = Path(cfg.resume).resolve().parents[1] if cfg.resume else Path(cfg.out_dir)
 
     torch.manual_seed(cfg.train.trainer.seed)
     model = instantiate(cfg.model, num_classes=len(class_names))
@@ -66,6 +66,14 @@ def run(cfg: DictConfig) -> dict[str, float]:
     run_settings = resolved_dict(OmegaConf.masked_copy(cfg, ["data", "enhance", "model", "fold"])) | {
         k: v for k, v in resolved_dict(cfg.train).items() if k not in ("trainer", "threads")
     }
+    resume = cfg.resume
+    if resume == "auto":
+        settings = {**trainer.settings, **run_settings}
+        resume = unfinished_checkpoint(list(cfg.resume_dirs), arch=model.arch, settings=settings)
+        print(
+            f"fold {cfg.fold}: " + (f"resuming {resume}" if resume else "nothing to resume, starting afresh")
+        )
+    out_dir = Path(resume).resolve().parents[1] if resume else Path(cfg.out_dir)
 
     plots = out_dir / "plots"
     plots.mkdir(parents=True, exist_ok=True)
@@ -79,7 +87,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
 
     tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
     # A resumed training continues the MLflow run that wrote its checkpoint (when this store has it).
-    earlier_run = load_checkpoint(cfg.resume).get("mlflow_run_id") if cfg.resume else None
+    earlier_run = load_checkpoint(resume).get("mlflow_run_id") if resume else None
     with start_run(
         cfg,
         run_name=f"fold{cfg.fold}",
@@ -101,7 +109,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             train_set=train_set,
             val_set=val_set,
             out_dir=out_dir,
-            resume_from=cfg.resume,
+            resume_from=resume,
             run_settings=run_settings,
             on_epoch_end=on_epoch_end,
             extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,

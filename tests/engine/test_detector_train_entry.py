@@ -6,6 +6,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
 from spacetrack.config import CONF_DIR
+from spacetrack.engine import trainer as trainer_module
 from spacetrack.engine.cross_validation import PARENT_ENV, CrossValidationCallback
 from spacetrack.train import run
 
@@ -66,6 +67,38 @@ def test_a_resumed_training_continues_its_mlflow_run(tiny_dataset, tmp_path):
     assert again.info.run_id == first.info.run_id
     assert again.info.status == "FINISHED"
     assert again.data.tags["resumes"] == "1"
+
+
+def test_resume_auto_finds_the_unfinished_run_of_the_same_settings(
+    tiny_dataset, tmp_path, monkeypatch, capsys
+):
+    common = ("fold=3", "model.width_multiple=0.125", "train.trainer.epochs=2", f"resume_dirs=[{tmp_path}]")
+    unbroken = run(config(tiny_dataset, tmp_path / "unbroken", *common))
+    real_evaluate, calls = trainer_module.evaluate, []
+
+    def stop_in_the_second_epoch(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(trainer_module, "evaluate", stop_in_the_second_epoch)
+    with pytest.raises(KeyboardInterrupt):
+        run(config(tiny_dataset, tmp_path / "stopped", *common))
+    calls.clear()
+    with pytest.raises(KeyboardInterrupt):  # a newer unfinished run, of another image size
+        run(config(tiny_dataset, tmp_path / "other", *common, "train.image_size=96"))
+    monkeypatch.setattr(trainer_module, "evaluate", real_evaluate)
+    stopped = tmp_path / "stopped" / "run" / "weights" / "last.pt"
+    capsys.readouterr()
+    again = run(config(tiny_dataset, tmp_path / "fresh", *common, "resume=auto"))
+    assert f"resuming {stopped}" in capsys.readouterr().out
+    assert again == unbroken
+    assert not (tmp_path / "fresh" / "run").exists()  # the stopped run's folder was reused
+    # Now nothing of these settings is left unfinished: a new run starts in its own folder.
+    run(config(tiny_dataset, tmp_path / "new", *common, "resume=auto"))
+    assert "nothing to resume, starting afresh" in capsys.readouterr().out
+    assert (tmp_path / "new" / "run" / "weights" / "last.pt").is_file()
 
 
 @pytest.mark.parametrize("fold", [-1, 9])

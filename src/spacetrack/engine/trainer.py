@@ -34,6 +34,29 @@ def resolve_device(device: str) -> torch.device:
     return torch.device(device)
 
 
+def unfinished_checkpoint(
+    folders: list[str | Path], *, arch: dict[str, Any], settings: dict[str, Any]
+) -> Path | None:
+    """The newest `weights/last.pt` under `folders` that a training with `arch` and `settings` (the
+    trainer's keywords and the run settings) can resume: same architecture and settings, epochs left.
+    Files that are not checkpoints are passed over."""
+    found = [p for folder in folders for p in Path(folder).glob("**/weights/last.pt")]
+    for path in sorted(found, key=lambda p: p.stat().st_mtime, reverse=True):
+        try:  # memory-mapped: only the small entries are read
+            state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+        except Exception:
+            continue
+        if not isinstance(state, dict) or not {"arch", "settings", "epoch"} <= set(state):
+            continue
+        if differences(state["arch"], arch) or differences(
+            state["settings"], settings, ignore=RESULT_NEUTRAL
+        ):
+            continue
+        if state["epoch"] + 1 < settings["epochs"]:
+            return path
+    return None
+
+
 def fitness(metrics: dict[str, float]) -> float:
     """What `best.pt` maximises: mostly mAP@0.5:0.95, a little mAP@0.5."""
     return 0.1 * metrics["map50"] + 0.9 * metrics["map50_95"]
