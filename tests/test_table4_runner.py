@@ -79,6 +79,19 @@ def test_settings_hash_ignores_fold_output_and_speed_but_not_what_changes_number
     assert table4.settings_hash(table4.piece_overrides("gt_deepsort_paper", 0, [])) != base
 
 
+def test_the_dynamic_hold_counts_only_where_it_acts():
+    # The paper's rows run without the hold (frames=0): their hash is that of before the option existed,
+    # and with the filter off the hold has nothing to act on.
+    paper = table4.piece_overrides("gt_sort", 0, [])
+    assert "dynamic_hold.frames=0" in paper
+    hold = table4.piece_overrides("gt_sort_hold", 0, [])
+    assert table4.settings_hash(hold) != table4.settings_hash(paper)
+    assert table4.settings_hash(hold) != table4.settings_hash(hold + ["dynamic_hold.frames=10"])
+    nofilter = table4.piece_overrides("gt_sort_nofilter", 0, [])
+    assert table4.settings_hash(nofilter) == table4.settings_hash(nofilter + ["dynamic_hold.frames=5"])
+    assert table4.settings_hash(paper) == table4.settings_hash(paper + ["dynamic_hold.min_iou=0.9"])
+
+
 @pytest.fixture
 def results_dir(tmp_path, monkeypatch):
     """The runner's results and tables under tmp_path, pieces 'tracked' by a stub that counts its calls."""

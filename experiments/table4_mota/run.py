@@ -45,23 +45,27 @@ GT = ["detector=ground_truth"]
 YOLO = ["detector=yolo", "detector_run.model=none", "enhance=none"]
 GAM = ["detector=yolo", "detector_run.model=after_sppf", "enhance=dwt_hsv"]
 NOFILTER = ["dynamic_filter=false"]
+PAPER_FILTER = ["dynamic_hold.frames=0"]  # the paper's per-frame filter, without the hold of conf/track.yaml
+HOLD = ["dynamic_hold.frames=30"]
 # row name -> (what the paper's Table 4 calls it, overrides of conf/track.yaml)
 ROWS: dict[str, tuple[str, list[str]]] = {
-    "yolo_deepsort_original": ("original DeepSORT settings, plain YOLOv5s", YOLO + ["tracker=deepsort_original"]),
-    "yolo_deepsort_paper": ("paper settings (Table 2), plain YOLOv5s", YOLO + ["tracker=deepsort_paper"]),
-    "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"]),
-    "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"]),
+    "yolo_deepsort_original": ("original DeepSORT settings, plain YOLOv5s", YOLO + ["tracker=deepsort_original"] + PAPER_FILTER),
+    "yolo_deepsort_paper": ("paper settings (Table 2), plain YOLOv5s", YOLO + ["tracker=deepsort_paper"] + PAPER_FILTER),
+    "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"] + PAPER_FILTER),
+    "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"] + PAPER_FILTER),
+    "gam_deepsort_paper_hold": ("the paper's method, filter with a 30-frame hold (beyond the paper)", GAM + ["tracker=deepsort_paper"] + HOLD),
     "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER),
-    "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort", "reid.weights=none"]),
-    "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings", GT + ["tracker=deepsort_original"]),
-    "gt_deepsort_paper": ("ground-truth boxes, paper settings", GT + ["tracker=deepsort_paper"]),
+    "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
+    "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings", GT + ["tracker=deepsort_original"] + PAPER_FILTER),
+    "gt_deepsort_paper": ("ground-truth boxes, paper settings", GT + ["tracker=deepsort_paper"] + PAPER_FILTER),
     "gt_deepsort_paper_nofilter": ("ground-truth boxes, paper settings, no filter", GT + ["tracker=deepsort_paper"] + NOFILTER),
-    "gt_sort": ("ground-truth boxes, SORT", GT + ["tracker=sort", "reid.weights=none"]),
+    "gt_sort": ("ground-truth boxes, SORT", GT + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
+    "gt_sort_hold": ("ground-truth boxes, SORT, filter with a 30-frame hold (beyond the paper)", GT + ["tracker=sort", "reid.weights=none"] + HOLD),
     "gt_sort_nofilter": ("ground-truth boxes, SORT, no dynamic-target filter", GT + ["tracker=sort", "reid.weights=none"] + NOFILTER),
 }  # fmt: skip
 SHOWN = ("mota", "idf1", "motp", "idsw", "fp", "fn")
 # The parts of conf/track.yaml that change a piece's numbers, and keys within them that change only speed.
-RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic",
+RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic", "dynamic_hold",
                "dynamic_filter", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
 SPEED_ONLY = frozenset({"device", "threads", "onnx_dir", "parallel", "batch_size"})
 
@@ -103,7 +107,10 @@ def settings_hash(overrides: list[str]) -> str:
         value = OmegaConf.select(cfg, key)
         return strip(resolved_dict(value)) if isinstance(value, DictConfig) else value
 
-    return config_hash({key: section(key) for key in RESULT_KEYS})
+    settings = {key: section(key) for key in RESULT_KEYS}
+    if not (settings["dynamic_filter"] and settings["dynamic_hold"]["frames"]):
+        del settings["dynamic_hold"]  # no hold (or no filter to hold): the numbers of before the option
+    return config_hash(settings)
 
 
 def run_piece(row: str, fold: int, common: list[str]) -> dict:

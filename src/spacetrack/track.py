@@ -20,6 +20,7 @@ from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
+from spacetrack.motion.dynamic import DynamicHold
 from spacetrack.pipeline.build import build_stream, cache_key, resolve_weights
 from spacetrack.pipeline.cache import DetectionCache
 from spacetrack.pipeline.runner import SequenceResult, run_source
@@ -105,6 +106,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
                 cache=cache,
                 key=cache_key(cfg, weights, source),
                 use_filter=cfg.dynamic_filter,
+                hold=DynamicHold(**cfg.dynamic_hold) if cfg.dynamic_filter else None,
                 out_dir=out_dir,
                 video=cfg.video,
                 progress=cfg.progress,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from spacetrack.motion.blobs import Blob, blob_boxes, intersections
+from spacetrack.tracking.iou_matching import iou_matrix
 
 
 def coverage(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> np.ndarray:
@@ -77,3 +78,61 @@ class DynamicFilter:
     def select(self, detections: np.ndarray, blobs: list[Blob]) -> np.ndarray:
         """The rows of a detection array (`frame,-1,x,y,w,h,conf,...` with tlwh at columns 2-5) that move."""
         return detections[self(detections[:, 2:6], blobs)]
+
+
+class DynamicHold:
+    """Keeps feeding a track whose target the motion stage loses for a few frames (beyond the paper).
+
+    The per-frame filter drops a box in every frame whose motion mask misses it, so a dim target that
+    flickers in and out of the mask, or one that slows down, loses its detections and then its track.
+    With `frames` > 0 a box the filter calls static still reaches the tracker when it overlaps (IoU >=
+    `min_iou`) the box of a track output on the previous frame, for at most `frames` frames in a row
+    per track; a dynamic box on the track ends the run. Tracks still start only from dynamic boxes, so a
+    parked object never becomes one, and a target that stops for good is dropped after `frames` frames.
+    `frames=0` is the paper's per-frame filter.
+    """
+
+    def __init__(self, *, frames: int = 0, min_iou: float = 0.5) -> None:
+        if frames < 0:
+            raise ValueError(f"dynamic_hold.frames must be >= 0, got {frames}")
+        if not 0 < min_iou <= 1:
+            raise ValueError(f"dynamic_hold.min_iou must lie in (0, 1], got {min_iou}")
+        self.frames, self.min_iou = int(frames), float(min_iou)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track (a new sequence)."""
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._boxes = np.zeros((0, 4))
+        self._held: dict[int, int] = {}  # track id -> frames in a row it was fed by held boxes
+
+    def keep(self, boxes_tlwh: np.ndarray, dynamic: np.ndarray) -> np.ndarray:
+        """(N,) bool: the boxes that reach the tracker this frame (the dynamic ones and the held ones)."""
+        dynamic = np.asarray(dynamic, dtype=bool)
+        if self.frames == 0 or len(self._ids) == 0 or dynamic.all():
+            return dynamic.copy()
+        iou = iou_matrix(boxes_tlwh, self._boxes)
+        near = iou >= self.min_iou
+        refreshed = near[dynamic].any(axis=0)  # tracks a dynamic box still feeds
+        best = iou.argmax(axis=1)
+        keep = dynamic.copy()
+        held_tracks = set()
+        for i in np.flatnonzero(~dynamic):
+            j = best[i]
+            track = int(self._ids[j])
+            if near[i, j] and not refreshed[j] and self._held.get(track, 0) < self.frames:
+                keep[i] = True
+                held_tracks.add(track)
+        for j, track in enumerate(self._ids.tolist()):
+            if refreshed[j]:
+                self._held[track] = 0
+            elif track in held_tracks:
+                self._held[track] = self._held.get(track, 0) + 1
+        return keep
+
+    def update(self, tracks: np.ndarray) -> None:
+        """Remember the tracker's output of this frame: rows (track id, x, y, w, h)."""
+        tracks = np.asarray(tracks, dtype=np.float64).reshape(-1, 5)
+        self._ids, self._boxes = tracks[:, 0].astype(np.int64), tracks[:, 1:5]
+        alive = set(self._ids.tolist())
+        self._held = {k: v for k, v in self._held.items() if k in alive}

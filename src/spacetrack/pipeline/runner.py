@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from spacetrack.motion.dynamic import DynamicHold
 from spacetrack.pipeline.cache import CacheKey, DetectionCache
 from spacetrack.pipeline.outputs import Annotator
 from spacetrack.pipeline.sources import FrameSource
@@ -69,11 +70,13 @@ def run_source(
     out_dir: Path,
     video: bool,
     progress: bool = True,
+    hold: DynamicHold | None = None,
 ) -> SequenceResult:
     """Track `source`; write `<out_dir>/<name>.txt` (MOT) and, with `video`, `<name>.mp4`.
 
     make_stream: builds the `DetectionStream` (loads the networks) only if the cache cannot serve.
-    use_filter: only detections that the motion stage marks dynamic reach the tracker.
+    use_filter: only detections that the motion stage marks dynamic reach the tracker ...
+    hold: ... and, with a `DynamicHold`, those it holds for tracks the motion stage lost for a while.
     """
     started = time.perf_counter()
     cached = cache.load(source.name, key) if cache is not None else None
@@ -91,20 +94,31 @@ def run_source(
         stream, total=source.num_frames, desc=source.name, unit="frame", disable=not progress, leave=False
     )
     annotator, results = Annotator(), []
+    if hold is not None:
+        hold.reset()
     mot_path, video_path = out_dir / f"{source.name}.txt", out_dir / f"{source.name}.mp4"
     with ExitStack() as stack:
         writer = None
         for item in bar:
-            keep = item.dynamic if use_filter else np.ones(len(item.rows), bool)
+            if not use_filter:
+                keep = np.ones(len(item.rows), bool)
+            elif hold is not None:
+                keep = hold.keep(item.rows[:, 2:6], item.dynamic)
+            else:
+                keep = item.dynamic
             dets = item.rows[keep]
             with timer("tracker"):
                 out = tracker.step(dets[:, 2:6], dets[:, 6], dets[:, 10:])
+            if hold is not None:
+                hold.update(out)
             results.append(np.column_stack([np.full(len(out), item.frame), out]))
             if video and item.image is not None:
                 if writer is None:
                     height, width = item.image.shape[:2]
                     writer = stack.enter_context(VideoWriter(video_path, source.fps, (width, height)))
-                static = item.rows[(~item.dynamic) & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
+                # Static objects drawn apart; a box held for a track is the track's, not static.
+                static_mask = ~item.dynamic & ~(keep if use_filter else False)
+                static = item.rows[static_mask & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
                 info = f"{source.name} frame {item.frame}  tracks {len(out)}"
                 with timer("draw"):
                     writer.write(annotator(item.image, out, static, info))
