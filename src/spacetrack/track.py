@@ -39,12 +39,16 @@ def select_sources(cfg: DictConfig) -> list[tuple[FrameSource, Path | None]]:
         gt = Path(str(cfg.source)) / "gt" / "gt.txt"
         return [(source, gt if gt.is_file() else None)]
     if cfg.sequence is None and cfg.fold is None:
-        raise ValueError("nothing to track: give fold=K, sequence=NAME or source=PATH|CAMERA_INDEX|realsense")
+        raise ValueError(
+            "nothing to track: give fold=K, sequence=NAME|all or source=PATH|CAMERA_INDEX|realsense"
+        )
     root = Path(cfg.dataset)
     manifest = load_manifest(root)
-    if cfg.sequence is not None:
+    known = [s["name"] for s in manifest["sequences"]]
+    if cfg.sequence == "all":  # every sequence of the dataset (its folds' models saw most of them)
+        names = known
+    elif cfg.sequence is not None:
         names = [str(cfg.sequence)]
-        known = {s["name"] for s in manifest["sequences"]}
         if names[0] not in known:
             raise ValueError(f"sequence {names[0]!r} is not in {root} (it has {sorted(known)})")
     else:

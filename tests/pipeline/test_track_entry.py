@@ -127,6 +127,23 @@ def test_appearance_tracker_without_reid_and_nothing_to_track_are_errors(smoke_d
     )
     with pytest.raises(ValueError, match="tracker=sort"):
         track.run(cfg)
-    with pytest.raises(ValueError, match="fold=K, sequence=NAME or source="):
+    with pytest.raises(ValueError, match="fold=K, sequence=NAME|all or source="):
         track.run(track_config(smoke_dataset, tmp_path, "detector=ground_truth", "reid.weights=none"))
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_sequence_all_tracks_the_whole_dataset_and_the_hold_never_tracks_parked_objects(
+    smoke_dataset, tmp_path
+):
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", "sequence=all", "video=false"]
+    names = sorted(p.parent.parent.name for p in smoke_dataset.glob("seq_*/gt/gt.txt"))
+    paper = track.run(track_config(smoke_dataset, tmp_path / "paper", *common, "dynamic_hold.frames=0"))
+    held = track.run(track_config(smoke_dataset, tmp_path / "held", *common))
+    assert sorted(p.stem for p in (tmp_path / "held" / "out").glob("seq_*.txt")) == names
+    assert held["fn"] <= paper["fn"]
+    for run_dir in ("paper", "held"):
+        overlap = _static_overlap(
+            tmp_path / run_dir / "out" / f"{STATIC_SEQ}.txt", smoke_dataset / STATIC_SEQ / "gt" / "static.txt"
+        )
+        assert overlap <= 2, run_dir
