@@ -147,3 +147,26 @@ def test_sequence_all_tracks_the_whole_dataset_and_the_hold_never_tracks_parked_
             tmp_path / run_dir / "out" / f"{STATIC_SEQ}.txt", smoke_dataset / STATIC_SEQ / "gt" / "static.txt"
         )
         assert overlap <= 2, run_dir
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("use_filter", ["true", "false"])
+def test_the_video_draws_apart_exactly_the_static_boxes(smoke_dataset, tmp_path, monkeypatch, use_filter):
+    from spacetrack.pipeline import runner
+
+    drawn, real_call = [], runner.Annotator.__call__
+
+    def spy(self, rgb, tracks, static_tlwh, info=""):
+        drawn.append(np.asarray(static_tlwh))
+        return real_call(self, rgb, tracks, static_tlwh, info)
+
+    monkeypatch.setattr(runner.Annotator, "__call__", spy)
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
+    track.run(track_config(smoke_dataset, tmp_path, *common, "video=true", f"dynamic_filter={use_filter}"))
+    static = np.loadtxt(smoke_dataset / STATIC_SEQ / "gt" / "static.txt", delimiter=",", ndmin=2)
+    assert len(drawn) > 0 and sum(len(d) for d in drawn) > 0
+    for frame, boxes in enumerate(drawn, start=1):
+        assert boxes.ndim == 2 and boxes.shape[1] == 4
+        parked = static[static[:, 0] == frame, 2:6]
+        for box in boxes:  # every box drawn as static is a parked object of that frame
+            assert np.abs(parked - box).max(axis=1).min() < 1e-6, (frame, box)

@@ -117,7 +117,7 @@ def run_source(
                     height, width = item.image.shape[:2]
                     writer = stack.enter_context(VideoWriter(video_path, source.fps, (width, height)))
                 # Static objects drawn apart; a box held for a track is the track's, not static.
-                static_mask = ~item.dynamic & ~(keep if use_filter else False)
+                static_mask = ~item.dynamic & ~keep if use_filter else ~item.dynamic
                 static = item.rows[static_mask & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
                 info = f"{source.name} frame {item.frame}  tracks {len(out)}"
                 with timer("draw"):
