@@ -110,13 +110,15 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """Turn SIGTERM into `Terminated` inside the block (main thread only; elsewhere nothing changes)."""
+def _sigterm_interrupts(seen: dict[str, bool]) -> Iterator[None]:
+    """Turn SIGTERM into `Terminated` inside the block and note it in `seen["terminated"]` (main thread
+    only; elsewhere nothing changes)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum: int, frame: object) -> None:
+        seen["terminated"] = True
         raise Terminated(f"signal {signum}")
 
     previous = signal.signal(signal.SIGTERM, handler)
@@ -176,8 +178,9 @@ def start_run(
             nested=nested or parent_run_id is not None,
             tags={**_git_tags(), **(tags or {})},
         )
+    seen = {"terminated": False}
     try:
-        with _sigterm_interrupts():
+        with _sigterm_interrupts(seen):
             if previous is not None:
                 mlflow.set_tags({**_git_tags(), "resumes": str(resumes)})
                 mlflow.log_text(config_text, f"config_resume{resumes}.yaml")
@@ -189,7 +192,8 @@ def start_run(
         mlflow.end_run(RunStatus.to_string(RunStatus.KILLED))
         raise
     except BaseException:
-        mlflow.end_run(RunStatus.to_string(RunStatus.FAILED))
+        # A stop signal can surface as another error (a data-loader worker killed by the same signal).
+        mlflow.end_run(RunStatus.to_string(RunStatus.KILLED if seen["terminated"] else RunStatus.FAILED))
         raise
     mlflow.end_run(RunStatus.to_string(RunStatus.FINISHED))
 
