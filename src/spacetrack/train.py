@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from spacetrack.config import CONF_DIR, resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
-from spacetrack.engine.checkpoint import load_checkpoint
+from spacetrack.engine.checkpoint import peek_checkpoint
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
 from spacetrack.engine.trainer import unfinished_checkpoint
@@ -87,7 +87,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
 
     tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
     # A resumed training continues the MLflow run that wrote its checkpoint (when this store has it).
-    earlier_run = load_checkpoint(resume).get("mlflow_run_id") if resume else None
+    earlier_run = peek_checkpoint(resume).get("mlflow_run_id") if resume else None
     with start_run(
         cfg,
         run_name=f"fold{cfg.fold}",

@@ -18,7 +18,7 @@ from torch import nn
 from torch.utils.data import DataLoader
 
 from spacetrack.data.yolo_dataset import YoloDataset, collate
-from spacetrack.engine.checkpoint import differences, load_checkpoint, save_checkpoint
+from spacetrack.engine.checkpoint import differences, load_checkpoint, peek_checkpoint, save_checkpoint
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
 from spacetrack.engine.validate import evaluate
 
@@ -42,8 +42,8 @@ def unfinished_checkpoint(
     Files that are not checkpoints are passed over."""
     found = [p for folder in folders for p in Path(folder).glob("**/weights/last.pt")]
     for path in sorted(found, key=lambda p: p.stat().st_mtime, reverse=True):
-        try:  # memory-mapped: only the small entries are read
-            state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+        try:
+            state = peek_checkpoint(path)
         except Exception:
             continue
         if not isinstance(state, dict) or not {"arch", "settings", "epoch"} <= set(state):
