@@ -112,6 +112,16 @@ def test_hand_worked_mota():
     assert m["motp"] == pytest.approx((4 + 19 * 20 / (2 * 400 - 19 * 20)) / 5)  # mean IoU of 5 matches
 
 
+def test_pooled_motp_leaves_out_sequences_without_a_match():
+    gt = _mot([(f, 1, 10, 10, 20, 20) for f in (1, 2, 3)])
+    hyp = _mot([(1, 5, 10, 10, 20, 20), (2, 5, 12, 10, 20, 20)])  # IoU 1 and 18 * 20 / (2 * 400 - 360)
+    out = evaluate({"tracked": (gt, hyp), "missed": (gt, _mot([])), "more": (gt, hyp)})
+    assert np.isnan(out["missed"]["motp"])
+    assert out[OVERALL]["motp"] == pytest.approx(out["tracked"]["motp"])
+    assert out["tracked"]["motp"] == pytest.approx((1 + 360 / 440) / 2)
+    assert out[OVERALL]["fn"] == 1 + 3 + 1
+
+
 def test_iou_threshold_is_inclusive_at_one_half():
     gt = _mot([(1, 1, 0, 0, 30, 10)])
     at_half = _mot([(1, 5, 10, 0, 30, 10)])  # IoU 20 / 40 = 0.5

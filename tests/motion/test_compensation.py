@@ -50,6 +50,33 @@ def test_scene_shift_accumulates_the_slew():
         SceneShift(tile=4)
 
 
+def _still_field_with_a_target(num_frames: int) -> list[np.ndarray]:
+    """A still star field crossed by a bright 24-pixel target moving 3 pixels a frame."""
+    frames = _star_field(num_frames, (0, 0), seed=1)
+    for t, frame in enumerate(frames):
+        frame[100:124, 20 + 3 * t : 44 + 3 * t] = 220
+    return frames
+
+
+def test_a_still_camera_stays_still_while_a_target_crosses_it():
+    frames = _still_field_with_a_target(40)
+    shift = SceneShift()
+    assert [shift.update(f) for f in frames] == [(0.0, 0.0)] * len(frames)
+    drifting = SceneShift(min_step=0)  # every estimate summed: the target's pull adds up
+    assert max(abs(v) for f in frames for v in drifting.update(f)) > 0.2
+    with pytest.raises(ValueError, match="min_step"):
+        SceneShift(min_step=-1)
+
+
+@pytest.mark.parametrize("cls", [FiveFrameDifference, ViBe])
+def test_compensation_changes_nothing_for_a_still_camera(run, cls):
+    frames = _still_field_with_a_target(40)
+    plain = run(cls(), frames)
+    compensated = run(cls(compensate=True), frames)
+    assert plain.keys() == compensated.keys()
+    assert all((plain[k] == compensated[k]).all() for k in plain)
+
+
 @pytest.mark.parametrize("cls", [FiveFrameDifference, ViBe])
 def test_compensation_keeps_a_slewing_star_field_still(run, cls):
     frames = _star_field(12, (2, 1))

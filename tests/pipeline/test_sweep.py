@@ -34,3 +34,18 @@ def test_heatmap_table_and_report(tmp_path):
     assert record["best"]["overrides"]["tracker.max_iou_distance"] == "0.7"
     assert record["best"]["overrides"]["tracker.max_cosine_distance"] == "0.2"
     assert (tmp_path / "sweep" / "heatmap.png").is_file() and (tmp_path / "sweep" / "sweep.md").is_file()
+
+
+def test_a_sweep_over_folds_gets_bars_with_the_mean(tmp_path):
+    points = [
+        {"overrides": {"fold": str(k), "video": "false"}, "metrics": {"mota": 0.1 * k, "idf1": 0.5}}
+        for k in range(3)
+    ]
+    callback = SweepCallback(metric="mota")
+    callback.points = points
+    callback._report(tmp_path / "cv")
+    record = json.loads((tmp_path / "cv" / "sweep.json").read_text())
+    assert record["swept"] == ["fold"]
+    assert abs(record["mota_mean"] - 0.1) < 1e-9 and abs(record["mota_std"] - 0.0816497) < 1e-6
+    assert (tmp_path / "cv" / "bars.png").stat().st_size > 0
+    assert not (tmp_path / "cv" / "heatmap.png").exists()

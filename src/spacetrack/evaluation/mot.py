@@ -115,7 +115,7 @@ def summarize(accumulators: Mapping[str, mm.MOTAccumulator]) -> dict[str, dict[s
     with _quiet_motmetrics():
         frame = host.compute_many(
             [accumulators[n] for n in names],
-            metrics=list(_MM_METRICS.values()),
+            metrics=[*_MM_METRICS.values(), "num_detections"],
             names=names,
             generate_overall=True,
         )
@@ -125,6 +125,13 @@ def summarize(accumulators: Mapping[str, mm.MOTAccumulator]) -> dict[str, dict[s
         metrics = {key: float(row[mm_key]) for key, mm_key in _MM_METRICS.items()}
         metrics["motp"] = 1.0 - metrics["motp"]
         out[str(name)] = metrics
+    # motmetrics pools MOTP as sum(motp * matches) / matches, and a sequence without a match has motp NaN,
+    # which turns the pooled value NaN too (0 * NaN); such a sequence adds no match, so leave it out.
+    matched = [
+        (out[n]["motp"], frame.loc[n, "num_detections"]) for n in names if frame.loc[n, "num_detections"] > 0
+    ]
+    if matched:
+        out[OVERALL]["motp"] = float(sum(m * k for m, k in matched) / sum(k for _, k in matched))
     return out
 
 

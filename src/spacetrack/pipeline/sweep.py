@@ -3,8 +3,8 @@
 On multirun start it opens a parent run and exports its id as `SPACETRACK_SWEEP_PARENT_RUN_ID` (the track
 config reads it into `sweep_parent_run_id`, so each point's run becomes a child). After each job it
 records the point's overrides and `metrics.json`; at the end it writes `sweep.json`, `sweep.md` and,
-when two keys were swept, `heatmap.png` (the metric over the grid; over folds, a bar chart with the mean)
-into the sweep folder, logs them on the parent with the best point and the mean and std of the metric.
+`heatmap.png` when two keys were swept (the metric over the grid) or `bars.png` when one was (the metric per
+value with the mean: over folds, `make track-cv`'s chart) into the sweep folder, logs them on the parent with the best point and the mean and std of the metric.
 """
 
 from __future__ import annotations
@@ -60,7 +60,8 @@ def plot_sweep(points: list[dict], keys: list[str], metric: str, path: Path) -> 
     if len(keys) == 1:
         labels = [str(p["overrides"][keys[0]]) for p in points]
         values = [p["metrics"].get(metric, np.nan) for p in points]
-        ax.bar(labels, values, color="tab:blue")
+        ax.bar(range(len(labels)), values, color="tab:blue")  # positions: labels like "3" stay labels
+        ax.set_xticks(range(len(labels)), labels)
         mean = float(np.nanmean(values))
         ax.axhline(mean, color="k", ls="--", label=f"mean {mean:.3f} ± {float(np.nanstd(values)):.3f}")
         ax.set_xlabel(keys[0])
@@ -82,7 +83,7 @@ def plot_sweep(points: list[dict], keys: list[str], metric: str, path: Path) -> 
         ax.set_xlabel(keys[0])
         ax.set_ylabel(keys[1])
         fig.colorbar(image, ax=ax, label=metric)
-    ax.set_title(f"{metric} per sweep point")
+    ax.set_title(f"{metric} per {keys[0]}" if len(keys) == 1 else f"{metric} per sweep point")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -156,8 +157,9 @@ class SweepCallback(MultirunParent):
         shown = [self.metric] + [m for m in ("idf1", "idsw", "fp", "fn") if m != self.metric]
         atomic_write_text(folder / "sweep.md", sweep_table(self.points, keys, shown))
         artifacts = [folder / "sweep.json", folder / "sweep.md"]
-        if plot_sweep(self.points, keys, self.metric, folder / "heatmap.png"):
-            artifacts.append(folder / "heatmap.png")
+        chart = folder / ("heatmap.png" if len(keys) == 2 else "bars.png")
+        if plot_sweep(self.points, keys, self.metric, chart):
+            artifacts.append(chart)
         if self.parent_id is not None:
             client = mlflow.MlflowClient()
             for key in (f"{self.metric}_mean", f"{self.metric}_std"):
