@@ -102,3 +102,44 @@ def test_sub_pixel_slew_of_blurred_stars_is_not_motion_once_compensated(run):
     moving_plain = sum(m.sum() for m in plain.values())
     assert moving_plain > 1000
     assert sum(m.sum() for m in compensated.values()) < moving_plain / 20
+
+
+def test_the_fusion_measures_each_frame_once_for_both_parts_in_turn_or_in_parallel(monkeypatch):
+    from spacetrack.motion import Fusion
+
+    frames = _star_field(14, (2, 1))
+    for t, frame in enumerate(frames):
+        frame[60:80, 30 + 4 * t : 50 + 4 * t] = 200  # a target too
+
+    def fusion(**kwargs):
+        return Fusion(
+            difference=FiveFrameDifference(compensate=True), background=ViBe(compensate=True), **kwargs
+        )
+
+    separate = fusion()
+    separate.background.scene_shift = SceneShift()  # each part measures on its own, as before sharing
+    calls = []
+    measure = SceneShift._measure
+    monkeypatch.setattr(SceneShift, "_measure", lambda self, grey: calls.append(1) or measure(self, grey))
+    expected = [separate.apply(f) for f in frames]
+    assert len(calls) == 2 * len(frames)
+    for shared in (fusion(), fusion(parallel=True)):
+        assert shared.background.scene_shift is shared.difference.scene_shift
+        calls.clear()
+        masks = [shared.apply(f) for f in frames]
+        assert len(calls) == len(frames)
+        assert all(
+            (a is None and b is None) or np.array_equal(a, b) for a, b in zip(masks, expected, strict=True)
+        )
+        assert sum(m.sum() for m in masks if m is not None) > 0  # the target is found
+        shared.close()
+
+
+def test_a_shared_estimator_refuses_frames_out_of_step():
+    shift = SceneShift()
+    frames = _star_field(3, (1, 0))
+    assert shift.update(frames[0], 0) == shift.update(frames[0], 0) == (0.0, 0.0)
+    first = shift.update(frames[1], 1)
+    assert shift.update(frames[1], 1) == first
+    with pytest.raises(ValueError, match="frame 3"):
+        shift.update(frames[2], 3)

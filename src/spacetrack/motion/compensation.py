@@ -4,11 +4,14 @@ Beyond the paper. A camera that slews moves every star and static object in the 
 background model then sees the star field as motion. `SceneShift` measures the translation between
 consecutive frames by phase correlation (OpenCV) on a grid of tiles and takes the median, so the few tiles
 that a large moving target fills do not pull the estimate along with the target. The differencing
-detectors warp their history to the current frame with sub-pixel precision (`warp_shift`); ViBe moves its
-model by whole pixels (`shift_image`), its neighbourhood sampling absorbing the remaining fraction.
+detectors resample each frame once onto the scene's whole-pixel grid (`warp_shift`, sub-pixel) and then
+align their history by whole pixels (`shift_image`); ViBe moves its model by whole pixels, its
+neighbourhood sampling absorbing the remaining fraction.
 """
 
 from __future__ import annotations
+
+import threading
 
 import cv2
 import numpy as np
@@ -24,13 +27,21 @@ def shift_image(image: np.ndarray, dx: int, dy: int, fill: np.ndarray, *, axis: 
         return image
     h, w = image.shape[axis], image.shape[axis + 1]
     out = np.empty_like(image)
-    out[...] = fill
     if abs(dx) >= w or abs(dy) >= h:
+        out[...] = fill
         return out
     lead = (slice(None),) * axis
     dst = lead + (slice(max(dy, 0), h + min(dy, 0)), slice(max(dx, 0), w + min(dx, 0)))
     src = lead + (slice(max(-dy, 0), h + min(-dy, 0)), slice(max(-dx, 0), w + min(-dx, 0)))
     out[dst] = image[src]
+    # only the strips that had no source take `fill` (one pass over the array, not two)
+    fill = np.broadcast_to(np.asarray(fill, dtype=image.dtype), image.shape)
+    rows = slice(0, dy) if dy > 0 else slice(h + dy, h)
+    cols = slice(0, dx) if dx > 0 else slice(w + dx, w)
+    if dy != 0:
+        out[lead + (rows,)] = fill[lead + (rows,)]
+    if dx != 0:
+        out[lead + (slice(None), cols)] = fill[lead + (slice(None), cols)]
     return out
 
 
@@ -56,6 +67,9 @@ class SceneShift:
             target moves on; summed over a still camera's frames that made the estimate wander by 1 to 5
             pixels in 150 frames of the renders, and ViBe's model with it. Slews slower than this go
             uncompensated (0: compensate any shift).
+
+    Detectors fed the same frames can share one estimator (the fusion's two parts do): `update` with the
+    caller's frame number measures each frame once and hands its offset to the next caller too.
     """
 
     def __init__(self, *, tile: int = 128, min_response: float = 0.05, min_step: float = 0.25) -> None:
@@ -66,15 +80,31 @@ class SceneShift:
         self.tile = tile
         self.min_response = min_response
         self.min_step = min_step
+        self._lock = threading.Lock()  # sharers may call from two threads (the fusion's `parallel`)
         self.reset()
 
     def reset(self) -> None:
-        self._previous: np.ndarray | None = None
-        self._window: np.ndarray | None = None
-        self._position = np.zeros(2)
+        with self._lock:
+            self._previous: np.ndarray | None = None
+            self._window: np.ndarray | None = None
+            self._position = np.zeros(2)
+            self._frames = 0
 
-    def update(self, grey: np.ndarray) -> tuple[float, float]:
-        """Feed the next (H, W) uint8 frame; return its offset (x, y) in pixels from the first frame."""
+    def update(self, grey: np.ndarray, frame: int | None = None) -> tuple[float, float]:
+        """Feed the next (H, W) uint8 frame; return its offset (x, y) in pixels from the first frame.
+
+        `frame`: the caller's 0-based number of this frame; a frame already measured is not measured
+        again (its offset is returned), so sharers must feed the same frames in the same order.
+        """
+        with self._lock:
+            if frame is not None and frame == self._frames - 1:
+                return float(self._position[0]), float(self._position[1])
+            if frame is not None and frame != self._frames:
+                raise ValueError(f"frame {frame} given to a scene-shift estimator at frame {self._frames}")
+            self._frames += 1
+            return self._measure(grey)
+
+    def _measure(self, grey: np.ndarray) -> tuple[float, float]:
         h, w = grey.shape
         side = min(self.tile, h, w)
         current = grey.astype(np.float32)

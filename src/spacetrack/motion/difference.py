@@ -2,8 +2,9 @@
 
 `FrameDifference` keeps the last few grey frames and leaves the combination of their differences to a
 subclass: `TwoFrameDifference` (eq. 1), `ThreeFrameDifference` (Fig. 4) and, in `five_frame`, the paper's
-five-frame difference. With `compensate`, frames are first brought into the pixel grid of the frame the mask
-refers to (see `compensation`), so a slewing camera does not turn the star field into motion.
+five-frame difference. With `compensate`, frames are first brought into one pixel grid, that of the frame
+the mask refers to to within half a pixel (see `compensation`), so a slewing camera does not turn the star
+field into motion.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from collections import deque
 import cv2
 import numpy as np
 
-from spacetrack.motion.compensation import SceneShift, warp_shift
+from spacetrack.motion.compensation import SceneShift, shift_image, warp_shift
 from spacetrack.motion.frames import FrameGuard, scale_exposure, to_grey
 
 
@@ -62,13 +63,13 @@ class FrameDifference(ABC):
         self.compensate = compensate
         self.match_exposure = match_exposure
         self._guard = FrameGuard()
-        self._shift = SceneShift()
+        self.scene_shift = SceneShift()  # the fusion hands its ViBe this one
         # (grey frame, scene offset (x, y), mean grey level) of the last `span` frames
-        self._history: deque[tuple[np.ndarray, tuple[float, float], float]] = deque(maxlen=self.span)
+        self._history: deque[tuple[np.ndarray, tuple[int, int], float]] = deque(maxlen=self.span)
 
     def reset(self) -> None:
         self._guard.reset()
-        self._shift.reset()
+        self.scene_shift.reset()
         self._history.clear()
 
     @property
@@ -78,7 +79,13 @@ class FrameDifference(ABC):
 
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         grey = to_grey(self._guard.check(frame))
-        offset = self._shift.update(grey) if self.compensate else (0.0, 0.0)
+        offset = (0, 0)
+        if self.compensate:
+            x, y = self.scene_shift.update(grey, self._guard.count - 1)
+            offset = (round(x), round(y))
+            # Resample once, onto the whole-pixel grid of the scene (at most half a pixel): from then on
+            # frames align by whole pixels, without interpolating the history again for every mask.
+            grey = warp_shift(grey, offset[0] - x, offset[1] - y, grey)
         self._history.append((grey, offset, cv2.mean(grey)[0] if self.match_exposure else 0.0))
         if len(self._history) < self.span:
             return None
@@ -88,7 +95,7 @@ class FrameDifference(ABC):
             if self.match_exposure:
                 g = scale_exposure(g, mean, level)
             # Pixels that entered the view have no past: they take the centre frame's value (no change).
-            aligned.append(warp_shift(g, cx - ox, cy - oy, centre))
+            aligned.append(shift_image(g, cx - ox, cy - oy, centre))
         return self._combine(aligned)
 
     def _moving(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -107,6 +107,9 @@ class Fusion:
         hull_min_fill: cut only regions whose difference pixels fill at least this share (0-1) of them.
         parallel: run the difference (and the filtering of its mask) in a worker thread while the calling
             thread runs the background model, so the two use two cores; the masks are the same either way.
+
+    When both detectors compensate camera motion they share one scene-shift estimator (each frame's
+    shift is measured once).
     """
 
     def __init__(
@@ -146,6 +149,8 @@ class Fusion:
             raise ValueError(f"hull_min_fill must be a share in [0, 1], got {hull_min_fill}")
         self.hull_min_fill = hull_min_fill
         self.parallel = parallel
+        if getattr(difference, "compensate", False) and getattr(background, "compensate", False):
+            background.scene_shift = difference.scene_shift  # both see the same frames: measure once
         self._worker: ThreadPoolExecutor | None = None
         self.latency = max(difference.latency, background.latency)
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_ksize, close_ksize))

@@ -91,12 +91,12 @@ class ViBe:
         self.absorb_subsampling = absorb_subsampling
         self.seed = seed
         self._guard = FrameGuard()
-        self._shift = SceneShift()
+        self.scene_shift = SceneShift()  # may be replaced by a shared one (the fusion)
         self.reset()
 
     def reset(self) -> None:
         self._guard.reset()
-        self._shift.reset()
+        self.scene_shift.reset()
         self._rng = np.random.default_rng(self.seed)
         self._model: np.ndarray | None = None  # (N, H, W) grey or (N, H, W, 3) colour samples
         self._offset = (0, 0)
@@ -109,7 +109,7 @@ class ViBe:
 
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         frame = self._guard.check(frame)
-        grey = to_grey(frame)
+        grey = raw = to_grey(frame)  # the scene shift is measured on the raw frame, as a sharer does
         if self.match_exposure and not self.colour:
             if self._model is None:
                 self._level = cv2.mean(grey)[0]
@@ -120,10 +120,10 @@ class ViBe:
             self._foreground_run = np.zeros(grey.shape, np.uint8)
             self._offset = (0, 0)
             if self.compensate:
-                self._shift.update(grey)
+                self.scene_shift.update(raw, self._guard.count - 1)
             return np.zeros(grey.shape, np.uint8)
         if self.compensate:
-            offset = tuple(round(v) for v in self._shift.update(grey))
+            offset = tuple(round(v) for v in self.scene_shift.update(raw, self._guard.count - 1))
             dx, dy = offset[0] - self._offset[0], offset[1] - self._offset[1]
             self._model = shift_image(self._model, dx, dy, image, axis=1)
             self._foreground_run = shift_image(self._foreground_run, dx, dy, 0)
