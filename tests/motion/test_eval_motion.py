@@ -50,7 +50,7 @@ def test_scores_every_method_per_scenario_and_writes_the_report(dataset, tmp_pat
     out.mkdir()
     cfg = compose_config("eval_motion", [f"dataset={dataset}", f"output_dir={out}", "logger=none"])
     metrics = run(cfg)
-    for label in ("nominal", "slew", "slew_gmc", "overall"):
+    for label in ("nominal", "slew", "slew_off", "slew_gmc", "overall"):
         for method in cfg.methods:
             assert 0.0 <= metrics[f"{label}.{method}.pixel_f1"] <= 1.0
     # a bright square on a still black field: the fusion finds it, blob for blob
@@ -59,7 +59,10 @@ def test_scores_every_method_per_scenario_and_writes_the_report(dataset, tmp_pat
     assert metrics["nominal.fusion.dynamic_recall"] == 1.0
     record = json.loads((out / "accuracy.json").read_text(), parse_constant=pytest.fail)
     assert record["results"]["nominal"]["fusion"]["static_rejection"] is None  # no static object
-    assert record["scored_with_compensation"] == ["slew"]
+    assert record["also_scored_off_and_on"] == ["slew"]
+    assert set(record["results"]) == {"nominal", "slew", "slew_off", "slew_gmc", "overall"}
+    # the overall row pools the rows as configured: frames of nominal and slew, not of _off and _gmc
+    assert record["results"]["overall"]["fusion"]["frames"] == 2 * (12 - 2 - 2)
     assert record["results"]["nominal"]["fusion"]["frames"] == 12 - 2 - 2
     report = (out / "accuracy.md").read_text()
     assert "| nominal |" in report

@@ -68,15 +68,27 @@ class SceneShift:
             pixels in 150 frames of the renders, and ViBe's model with it. Slews slower than this go
             uncompensated (0: compensate any shift).
 
+        probe_every: 0 measures every frame. N > 0 (`compensate: auto` in the detectors) first only probes
+            every N-th frame against the previous probe, and measures every frame from the first probe that
+            finds the scene moved (at least N * min_step pixels, by the median of at least three confident
+            tiles) on: a still camera pays one measurement
+            in N frames and its offset stays exactly zero; a slewing one is compensated from its first
+            probe on (the frames before it are not).
+
     Detectors fed the same frames can share one estimator (the fusion's two parts do): `update` with the
     caller's frame number measures each frame once and hands its offset to the next caller too.
     """
 
-    def __init__(self, *, tile: int = 128, min_response: float = 0.05, min_step: float = 0.25) -> None:
+    def __init__(
+        self, *, tile: int = 128, min_response: float = 0.05, min_step: float = 0.25, probe_every: int = 0
+    ) -> None:
         if tile < 8:
             raise ValueError(f"tile must be >= 8 pixels, got {tile}")
         if min_step < 0:
             raise ValueError(f"min_step must be >= 0 pixels, got {min_step}")
+        if probe_every < 0:
+            raise ValueError(f"probe_every must be >= 0 frames, got {probe_every}")
+        self.probe_every = probe_every
         self.tile = tile
         self.min_response = min_response
         self.min_step = min_step
@@ -89,6 +101,7 @@ class SceneShift:
             self._window: np.ndarray | None = None
             self._position = np.zeros(2)
             self._frames = 0
+            self.moving = self.probe_every == 0  # False while `probe_every` still waits for motion
 
     def update(self, grey: np.ndarray, frame: int | None = None) -> tuple[float, float]:
         """Feed the next (H, W) uint8 frame; return its offset (x, y) in pixels from the first frame.
@@ -105,24 +118,44 @@ class SceneShift:
             return self._measure(grey)
 
     def _measure(self, grey: np.ndarray) -> tuple[float, float]:
-        h, w = grey.shape
-        side = min(self.tile, h, w)
+        probing = not self.moving
+        if probing and (self._frames - 1) % self.probe_every:
+            return float(self._position[0]), float(self._position[1])  # between probes: still
         current = grey.astype(np.float32)
         if self._previous is not None:
-            if self._window is None:
-                self._window = cv2.createHanningWindow((side, side), cv2.CV_32F)
-            shifts = []
-            for top in range(0, h - side + 1, side):
-                for left in range(0, w - side + 1, side):
-                    window = (slice(top, top + side), slice(left, left + side))
-                    (dx, dy), response = cv2.phaseCorrelate(
-                        self._previous[window], current[window], self._window
-                    )
-                    if np.isfinite(response) and response >= self.min_response:
-                        shifts.append((dx, dy))
-            if shifts:
-                step = np.median(np.array(shifts), axis=0)
-                if np.hypot(*step) >= self.min_step:
-                    self._position += step
+            step, tiles = self._step(self._previous, current)
+            # a probe trusts only several agreeing tiles: one tile may hold nothing but a large target
+            trusted = not probing or tiles >= PROBE_MIN_TILES
+            if trusted and np.hypot(*step) >= self.min_step * (self.probe_every if probing else 1):
+                self._position += step
+                self.moving = True
         self._previous = current
         return float(self._position[0]), float(self._position[1])
+
+    def _step(self, previous: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, int]:
+        """Median shift (x, y) of the confident tiles from `previous` to `current` (zero without any),
+        and how many tiles were confident."""
+        h, w = current.shape
+        side = min(self.tile, h, w)
+        if self._window is None:
+            self._window = cv2.createHanningWindow((side, side), cv2.CV_32F)
+        shifts = []
+        for top in range(0, h - side + 1, side):
+            for left in range(0, w - side + 1, side):
+                window = (slice(top, top + side), slice(left, left + side))
+                (dx, dy), response = cv2.phaseCorrelate(previous[window], current[window], self._window)
+                if np.isfinite(response) and response >= self.min_response:
+                    shifts.append((dx, dy))
+        return (np.median(np.array(shifts), axis=0) if shifts else np.zeros(2)), len(shifts)
+
+
+PROBE_EVERY = 5  # frames between the probes of `compensate: auto`
+PROBE_MIN_TILES = 3  # confident tiles a probe needs to find the scene moving
+
+
+def scene_shift_for(compensate: bool | str) -> SceneShift:
+    """The estimator a detector's `compensate` setting asks for: False or True (measure every frame) or
+    "auto" (probe every PROBE_EVERY frames until the scene moves); anything else is an error."""
+    if compensate not in (False, True, "auto"):
+        raise ValueError(f"compensate must be false, true or auto, got {compensate!r}")
+    return SceneShift(probe_every=PROBE_EVERY if compensate == "auto" else 0)

@@ -16,7 +16,7 @@ from collections import deque
 import cv2
 import numpy as np
 
-from spacetrack.motion.compensation import SceneShift, shift_image, warp_shift
+from spacetrack.motion.compensation import scene_shift_for, shift_image, warp_shift
 from spacetrack.motion.frames import FrameGuard, scale_exposure, to_grey
 
 
@@ -38,7 +38,8 @@ class FrameDifference(ABC):
     Args:
         alpha: weight of the mean absolute difference in the adaptive threshold (eq. 17), unitless.
         threshold: fixed part T of the threshold, grey levels (0-255).
-        compensate: register frames against global camera motion before differencing.
+        compensate: register frames against global camera motion before differencing: true, false, or
+            "auto" (only once the scene is found to move; see `compensation.SceneShift`'s `probe_every`).
         match_exposure: scale every frame of the window to the mean grey level of the frame the mask
             refers to, so an exposure step (all pixels times a gain) is not motion.
     """
@@ -51,7 +52,7 @@ class FrameDifference(ABC):
         *,
         alpha: float = 1.0,
         threshold: float = 20.0,
-        compensate: bool = False,
+        compensate: bool | str = False,
         match_exposure: bool = False,
     ) -> None:
         if threshold <= 0:
@@ -63,7 +64,7 @@ class FrameDifference(ABC):
         self.compensate = compensate
         self.match_exposure = match_exposure
         self._guard = FrameGuard()
-        self.scene_shift = SceneShift()  # the fusion hands its ViBe this one
+        self.scene_shift = scene_shift_for(compensate)  # the fusion hands its ViBe this one
         # (grey frame, scene offset (x, y), mean grey level) of the last `span` frames
         self._history: deque[tuple[np.ndarray, tuple[int, int], float]] = deque(maxlen=self.span)
 

@@ -108,8 +108,8 @@ class Fusion:
         parallel: run the difference (and the filtering of its mask) in a worker thread while the calling
             thread runs the background model, so the two use two cores; the masks are the same either way.
 
-    When both detectors compensate camera motion they share one scene-shift estimator (each frame's
-    shift is measured once).
+    When both detectors compensate camera motion the same way they share one scene-shift estimator (each
+    frame's shift is measured once).
     """
 
     def __init__(
@@ -149,7 +149,8 @@ class Fusion:
             raise ValueError(f"hull_min_fill must be a share in [0, 1], got {hull_min_fill}")
         self.hull_min_fill = hull_min_fill
         self.parallel = parallel
-        if getattr(difference, "compensate", False) and getattr(background, "compensate", False):
+        modes = getattr(difference, "compensate", False), getattr(background, "compensate", False)
+        if modes[0] and modes[0] == modes[1]:
             background.scene_shift = difference.scene_shift  # both see the same frames: measure once
         self._worker: ThreadPoolExecutor | None = None
         self.latency = max(difference.latency, background.latency)

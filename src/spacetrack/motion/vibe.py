@@ -27,7 +27,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from spacetrack.motion.compensation import SceneShift, shift_image
+from spacetrack.motion.compensation import scene_shift_for, shift_image
 from spacetrack.motion.frames import FrameGuard, match_exposure, to_grey
 
 # The 8-neighbourhood as (dy, dx).
@@ -44,7 +44,7 @@ class ViBe:
         subsampling: an update happens with probability 1/subsampling (paper: 16).
         colour: model RGB triples (Euclidean distance) instead of grey values.
         compensate: move the model with the camera (see `compensation`); pixels entering the view restart
-            their model from the current frame.
+            their model from the current frame. True, false, or "auto" (once the scene is found to move).
         match_exposure: scale each grey frame to the first frame's mean grey level before comparing, so
             an exposure step is not foreground (grey models only).
         absorb_after: frames a pixel must stay foreground before it updates too (1-255); 0 never (pure
@@ -64,7 +64,7 @@ class ViBe:
         min_matches: int = 2,
         subsampling: int = 16,
         colour: bool = False,
-        compensate: bool = False,
+        compensate: bool | str = False,
         match_exposure: bool = False,
         absorb_after: int = 60,
         absorb_subsampling: int | None = None,
@@ -91,7 +91,7 @@ class ViBe:
         self.absorb_subsampling = absorb_subsampling
         self.seed = seed
         self._guard = FrameGuard()
-        self.scene_shift = SceneShift()  # may be replaced by a shared one (the fusion)
+        self.scene_shift = scene_shift_for(compensate)  # may be replaced by a shared one (the fusion)
         self.reset()
 
     def reset(self) -> None:
