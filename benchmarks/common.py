@@ -51,10 +51,11 @@ def interleaved_samples(
 
 
 def summarize(samples: list[float], scale: float = 1e3) -> dict[str, float]:
-    """Median, quartiles, min and max of `samples` multiplied by `scale` (default: seconds -> ms)."""
+    """Median, quartiles, mean, min and max of `samples` multiplied by `scale` (default: seconds -> ms)."""
     xs = sorted(s * scale for s in samples)
     q = statistics.quantiles(xs, n=4) if len(xs) >= 2 else [xs[0]] * 3
-    return {"median": q[1], "p25": q[0], "p75": q[2], "min": xs[0], "max": xs[-1], "n": len(xs)}
+    return {"median": q[1], "p25": q[0], "p75": q[2], "mean": statistics.fmean(xs), "min": xs[0],
+            "max": xs[-1], "n": len(xs)}  # fmt: skip
 
 
 def machine() -> dict[str, object]:

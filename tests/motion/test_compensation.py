@@ -146,26 +146,26 @@ def test_a_shared_estimator_refuses_frames_out_of_step():
 
 
 @pytest.mark.parametrize("cls", [FiveFrameDifference, ViBe])
-def test_auto_leaves_a_still_camera_alone_and_probes_one_frame_in_five(run, cls, monkeypatch):
+def test_auto_leaves_a_still_camera_alone_and_probes_one_frame_in_ten(run, cls, monkeypatch):
     frames = _still_field_with_a_target(40)
     calls = []
     step = SceneShift._step
-    monkeypatch.setattr(SceneShift, "_step", lambda self, a, b: calls.append(1) or step(self, a, b))
+    monkeypatch.setattr(SceneShift, "_step", lambda self, *args: calls.append(1) or step(self, *args))
     auto = cls(compensate="auto")
     masks = run(auto, frames)
-    assert not auto.scene_shift.moving and len(calls) == 40 // 5 - 1  # probes at frames 5, 10, ..., 35
+    assert not auto.scene_shift.moving and len(calls) == 3  # probes at frames 10, 20, 30
     plain = run(cls(), frames)
     assert all((plain[k] == masks[k]).all() for k in plain)
 
 
 @pytest.mark.parametrize("cls", [FiveFrameDifference, ViBe])
 def test_auto_compensates_a_slewing_camera_from_its_first_probe_on(run, cls):
-    frames = _star_field(30, (1, 1))
+    frames = _star_field(36, (1, 1))
     auto = cls(compensate="auto")
     masks = run(auto, frames)
     assert auto.scene_shift.moving
     plain = run(cls(), frames)
-    late = [k for k in masks if k >= 12]  # a few frames after the probe at frame 5 found the slew
+    late = [k for k in masks if k >= 16]  # a few frames after the probe at frame 10 found the slew
     assert max(plain[k].mean() for k in late) > 0.01
     assert max(masks[k].mean() for k in late) < 0.0005
 

@@ -69,9 +69,9 @@ class SceneShift:
             uncompensated (0: compensate any shift).
 
         probe_every: 0 measures every frame. N > 0 (`compensate: auto` in the detectors) first only probes
-            every N-th frame against the previous probe, and measures every frame from the first probe that
-            finds the scene moved (at least N * min_step pixels, by the median of at least three confident
-            tiles) on: a still camera pays one measurement
+            every N-th frame against the previous probe, and measures every frame from
+            the first probe that finds the scene moved (at least N * min_step pixels, by the median of at
+            least three confident tiles) on: a still camera pays one measurement
             in N frames and its offset stays exactly zero; a slewing one is compensated from its first
             probe on (the frames before it are not).
 
@@ -118,19 +118,29 @@ class SceneShift:
             return self._measure(grey)
 
     def _measure(self, grey: np.ndarray) -> tuple[float, float]:
-        probing = not self.moving
-        if probing and (self._frames - 1) % self.probe_every:
-            return float(self._position[0]), float(self._position[1])  # between probes: still
+        if not self.moving:
+            self._probe(grey)
+        else:
+            current = grey.astype(np.float32)
+            if self._previous is not None:
+                step, _ = self._step(self._previous, current)
+                if np.hypot(*step) >= self.min_step:
+                    self._position += step
+            self._previous = current
+        return float(self._position[0]), float(self._position[1])
+
+    def _probe(self, grey: np.ndarray) -> None:
+        """Every `probe_every` frames: has the scene moved since the last probe? Trusted only from several
+        agreeing tiles (one tile may hold nothing but a large target)."""
+        if (self._frames - 1) % self.probe_every:
+            return
         current = grey.astype(np.float32)
         if self._previous is not None:
             step, tiles = self._step(self._previous, current)
-            # a probe trusts only several agreeing tiles: one tile may hold nothing but a large target
-            trusted = not probing or tiles >= PROBE_MIN_TILES
-            if trusted and np.hypot(*step) >= self.min_step * (self.probe_every if probing else 1):
+            if tiles >= PROBE_MIN_TILES and np.hypot(*step) >= self.min_step * self.probe_every:
                 self._position += step
                 self.moving = True
         self._previous = current
-        return float(self._position[0]), float(self._position[1])
 
     def _step(self, previous: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, int]:
         """Median shift (x, y) of the confident tiles from `previous` to `current` (zero without any),
@@ -149,7 +159,7 @@ class SceneShift:
         return (np.median(np.array(shifts), axis=0) if shifts else np.zeros(2)), len(shifts)
 
 
-PROBE_EVERY = 5  # frames between the probes of `compensate: auto`
+PROBE_EVERY = 10  # frames between the probes of `compensate: auto`
 PROBE_MIN_TILES = 3  # confident tiles a probe needs to find the scene moving
 
 
