@@ -3,10 +3,10 @@
 Contenders (built from conf/motion/, as a user runs them), fed the same synthetic RGB frames in one run:
 two-, three- and five-frame difference, our ViBe, OpenCV MOG2 and KNN, the Fig. 8 fusion (region 'and',
 the default) and, for reference, the fusion with the paper's pixel 'and', the fusion with global motion
-compensation and MOG2 fed grey frames. The frames hold a noisy dark sky, 300 static stars and three
-moving targets. Contenders are timed in
-interleaved rounds (a block of frames each, round after round), so load from other processes on this
-machine falls on all of them alike; all of it twice: with one OpenCV thread, every contender on one core
+compensation (fed the same scene with the star field slewing) and MOG2 fed grey frames. The frames hold
+a noisy dark sky, 300 static stars and three moving targets. Contenders are timed in interleaved rounds
+(a block of frames each, round after round), so load from other processes on this machine falls on all
+of them alike; all of it twice: with one OpenCV thread, every contender on one core
 (the fusion runs its two detectors in turn), and with OpenCV's default thread count, where MOG2 and KNN
 split each frame over the cores and the fusion runs the difference and ViBe on two threads
 (`parallel: true`; `fusion_in_turn` is the default, which runs them in turn).

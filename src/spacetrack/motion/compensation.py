@@ -67,13 +67,11 @@ class SceneShift:
             target moves on; summed over a still camera's frames that made the estimate wander by 1 to 5
             pixels in 150 frames of the renders, and ViBe's model with it. Slews slower than this go
             uncompensated (0: compensate any shift).
-
         probe_every: 0 measures every frame. N > 0 (`compensate: auto` in the detectors) first only probes
-            every N-th frame against the previous probe, and measures every frame from
-            the first probe that finds the scene moved (at least N * min_step pixels, by the median of at
-            least three confident tiles) on: a still camera pays one measurement
-            in N frames and its offset stays exactly zero; a slewing one is compensated from its first
-            probe on (the frames before it are not).
+            every N-th frame against the previous probe, and measures every frame from the first probe
+            that finds the scene moved (at least N * min_step pixels, by the median of at least three
+            confident tiles) on: a still camera pays one measurement in N frames and its offset stays
+            exactly zero; a slewing one is compensated from its first probe on (not the frames before).
 
     Detectors fed the same frames can share one estimator (the fusion's two parts do): `update` with the
     caller's frame number measures each frame once and hands its offset to the next caller too.
