@@ -6,13 +6,13 @@ rounds; the peer is the paper's configuration: torch at the detector's 640 px in
 another. The others: torch at 320 px; ONNX Runtime at 320 px (`backend: auto` on a CPU): in turn, with the
 motion stage overlapped in a thread, and with the re-ID of each frame also overlapped with the detector
 of the next (the default), there also with the fusion's two detectors on two threads
-(`motion.parallel=true`); the defaults on DWT/HSV-enhanced input. Without
-`--detector-weights` the detector is randomly initialised and, so that the re-ID and the tracker see a
-realistic load, the boxes passed on are the sequence's ground truth.
+(`motion.parallel=true`); the defaults on DWT/HSV-enhanced input. The networks are the shipped fold-3
+models (`weights/`) unless told otherwise; with `--detector-weights none` the detector is randomly
+initialised and, so that the re-ID and the tracker see a realistic load, the boxes passed on are the
+sequence's ground truth.
 
     python benchmarks/bench_pipeline.py [--frames 60] [--rounds 3] [--threads 1] [--ort-threads 1]
-    python benchmarks/bench_pipeline.py --detector-weights weights/detector_yolov5s_fold3.pt \
-        --reid-weights weights/reid_fold3.pt                 # the shipped models, real detections
+    python benchmarks/bench_pipeline.py --detector-weights best.pt --reid-weights reid.pt   # other models
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from common import markdown_table, write_report
-from spacetrack.config import compose_config
+from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import DetectionStream, GroundTruthDetector, StageTimer, YoloDetector
@@ -91,6 +91,10 @@ def one_pass(stream: DetectionStream, frames: list[np.ndarray], name: str, track
     return (time.perf_counter() - start) / len(frames), stream.timer.ms_per_frame(len(frames))
 
 
+SHIPPED_DETECTOR = REPO_ROOT / "weights" / "detector_yolov5s_fold3.pt"
+SHIPPED_REID = REPO_ROOT / "weights" / "reid_fold3.pt"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--dataset", default="data/space_default")
@@ -104,9 +108,18 @@ def main() -> None:
         "--ort-threads", type=int, default=1, help="onnxruntime intra-op threads (0: its default)"
     )
     parser.add_argument("--device", default="auto", help="auto (CUDA when present), cpu or cuda")
-    parser.add_argument("--detector-weights", default=None, help="a trained best.pt (default: random init)")
-    parser.add_argument("--reid-weights", default=None, help="a trained reid.pt (default: random init)")
+    parser.add_argument(
+        "--detector-weights", help="a trained best.pt (default: the shipped fold-3 one; none)"
+    )
+    parser.add_argument("--reid-weights", help="a trained reid.pt (default: the shipped fold-3 one; none)")
     args = parser.parse_args()
+    # default: the shipped weights (a clone has them); `none`: random init, ground-truth boxes passed on
+    for key, shipped in (("detector_weights", SHIPPED_DETECTOR), ("reid_weights", SHIPPED_REID)):
+        value = getattr(args, key)
+        if value is None and shipped.is_file():
+            setattr(args, key, str(shipped))
+        elif value == "none":
+            setattr(args, key, None)
     torch.set_num_threads(args.threads)
     cfg = compose_config("track", ["logger=none", "tracker=deepsort_paper"])
     source = sequence_source(args.dataset, args.sequence)
