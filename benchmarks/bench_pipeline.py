@@ -125,8 +125,8 @@ def main() -> None:
     source = sequence_source(args.dataset, args.sequence)
     frames = list(itertools.islice(source, args.frames))
     height, width = frames[0].shape[:2]
-    tmp = Path(tempfile.mkdtemp())
-    det_weights, reid_weights = random_weights(tmp)
+    scratch = tempfile.TemporaryDirectory()  # the random weights; removed when the run ends
+    det_weights, reid_weights = random_weights(Path(scratch.name))
     det_weights = Path(args.detector_weights or det_weights)
     device = resolve_device(args.device)
     reid_path = args.reid_weights or reid_weights

@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.parse
 import urllib.request
@@ -300,3 +301,32 @@ def test_real_server_round_trip_over_rest(config_dir: Path, tmp_path: Path) -> N
         except subprocess.TimeoutExpired:
             os.killpg(server.pid, signal.SIGKILL)
             server.wait()
+
+
+def test_artifact_file_is_the_stored_file_or_one_kept_download(
+    config_dir: Path, store: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=artifacts")
+    weights = tmp_path / "best.pt"
+    weights.write_bytes(b"weights")
+    with mlflow_log.start_run(cfg, run_name="w") as run:
+        mlflow_log.log_artifact_file(weights, artifact_path="weights")
+    run_id = run.info.run_id
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # where a download would leave its copy
+    local = mlflow_log.artifact_file(run_id, "weights/best.pt", tracking_uri=store)
+    # a local store: its own file, nothing copied anywhere
+    assert local.read_bytes() == b"weights" and local.parent.parent.name == "artifacts"
+    assert list(scratch.iterdir()) == []
+    # any other store: downloaded once into outputs/mlflow_artifacts/<run>/ and reused
+    monkeypatch.setattr(mlflow_log, "REPO_ROOT", tmp_path / "repo")
+    monkeypatch.setattr(
+        mlflow_log, "urlparse", lambda uri: urllib.parse.urlparse("mlflow-artifacts:/elsewhere")
+    )
+    kept = mlflow_log.artifact_file(run_id, "weights/best.pt", tracking_uri=store)
+    assert kept == tmp_path / "repo" / "outputs" / "mlflow_artifacts" / run_id / "weights" / "best.pt"
+    assert kept.read_bytes() == b"weights"
+    assert [p.name for p in kept.parent.iterdir()] == ["best.pt"]  # no scratch folder left beside it
+    kept.write_bytes(b"kept")
+    assert mlflow_log.artifact_file(run_id, "weights/best.pt", tracking_uri=store).read_bytes() == b"kept"

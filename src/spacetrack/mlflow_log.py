@@ -16,11 +16,14 @@ import os
 import re
 import signal
 import subprocess
+import tempfile
 import threading
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlparse
+from urllib.request import url2pathname
 
 import mlflow
 import numpy as np
@@ -208,6 +211,29 @@ def log_artifact_file(path: str | Path, artifact_path: str | None = None) -> Non
         raise FileNotFoundError(f"cannot log artifact {path}: no such file")
     if mlflow.active_run() is not None:
         mlflow.log_artifact(str(path), artifact_path=artifact_path)
+
+
+def artifact_file(run_id: str, artifact_path: str, *, tracking_uri: str) -> Path:
+    """A local path of one file a run logged. With a local artifact store that is the stored file itself;
+    otherwise it is downloaded once into `outputs/mlflow_artifacts/<run id>/` (atomically: a broken
+    download leaves nothing there) and reused. MLflow's own download would copy it into a new temporary
+    folder on every call, which is never removed."""
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri)
+    root = client.get_run(run_id).info.artifact_uri
+    parsed = urlparse(root)
+    if parsed.scheme in ("", "file"):
+        stored = Path(url2pathname(parsed.path)) / artifact_path
+        if stored.is_file():
+            return stored
+    target = REPO_ROOT / "outputs" / "mlflow_artifacts" / run_id / artifact_path
+    if not target.is_file():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=target.parent) as scratch:
+            local = mlflow.artifacts.download_artifacts(
+                run_id=run_id, artifact_path=artifact_path, dst_path=scratch, tracking_uri=tracking_uri
+            )
+            os.replace(local, target)
+    return target
 
 
 def log_metrics_step(metrics: Mapping[str, float], step: int) -> None:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import mlflow
 
+from spacetrack.mlflow_log import artifact_file
 from spacetrack.mlflow_log import tracking_uri as resolve_uri
 
 
@@ -68,10 +69,7 @@ def fold_artifact(
     for run in runs:
         names = {a.path for a in client.list_artifacts(run.info.run_id, str(Path(artifact).parent))}
         if artifact in names:
-            local = mlflow.artifacts.download_artifacts(
-                run_id=run.info.run_id, artifact_path=artifact, tracking_uri=uri
-            )
-            return Path(local)
+            return artifact_file(run.info.run_id, artifact, tracking_uri=uri)
     described = ", ".join(f"{k}={v}" for k, v in wanted.items())
     raise MissingWeightsError(
         f"no trained weights for fold {fold} of {dataset} ({described}) in MLflow experiment "

@@ -91,13 +91,10 @@ class Encoder:
         cls, run_id: str, *, artifact_path: str = WEIGHTS_ARTIFACT, tracking_uri: str | None = None, **kwargs
     ) -> Encoder:
         """An encoder from the weights a training run logged to MLflow (artifact `weights/reid.pt`)."""
-        import mlflow
-
+        from spacetrack.mlflow_log import artifact_file
         from spacetrack.mlflow_log import tracking_uri as resolve_uri
 
-        local = mlflow.artifacts.download_artifacts(
-            run_id=run_id, artifact_path=artifact_path, tracking_uri=resolve_uri(tracking_uri)
-        )
+        local = artifact_file(run_id, artifact_path, tracking_uri=resolve_uri(tracking_uri))
         return cls.from_weights(local, **kwargs)
 
     @torch.no_grad()
