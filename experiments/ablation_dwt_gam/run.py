@@ -31,7 +31,7 @@ from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.validate import evaluate
 from spacetrack.io import atomic_write_text
-from spacetrack.mlflow_log import flatten_params, tracking_uri
+from spacetrack.mlflow_log import artifact_file, flatten_params, tracking_uri
 from spacetrack.train import run
 
 HERE = Path(__file__).resolve().parent
@@ -92,11 +92,9 @@ def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     for found in runs:
         params = found.data.params
         if all(params.get(k) == v for k, v in wanted.items()) and "best_map50" in found.data.metrics:
-            local = mlflow.artifacts.download_artifacts(
-                run_id=found.info.run_id, artifact_path="weights/best.pt", tracking_uri=client.tracking_uri
-            )
+            local = artifact_file(found.info.run_id, "weights/best.pt", tracking_uri=client.tracking_uri)
             metrics = {k[len("best_") :]: v for k, v in found.data.metrics.items() if k.startswith("best_")}
-            return found.info.run_id, metrics, Path(local)
+            return found.info.run_id, metrics, local
     return None
 
 
