@@ -92,17 +92,17 @@ def time_interleaved(
 ) -> dict[str, list]:
     """Seconds per `apply` call of each detector, fed the frames in order, round-robin in blocks;
     `own_frames` gives some detectors {name: frames} of their own (the same number)."""
-    own_frames = own_frames or {}
+    feeds = {name: (own_frames or {}).get(name, frames) for name in detectors}
     samples: dict[str, list[float]] = {name: [] for name in detectors}
     cursor = {name: 0 for name in detectors}
     for name, detector in detectors.items():  # warm-up: every detector past its start-up frames
-        for frame in own_frames.get(name, frames)[:10]:
+        for frame in feeds[name][:10]:
             detector.apply(frame)
         cursor[name] = 10
     for _ in range(rounds):
         for name, detector in detectors.items():
             for _ in range(block):
-                frame = own_frames.get(name, frames)[cursor[name] % len(frames)]
+                frame = feeds[name][cursor[name] % len(frames)]
                 cursor[name] += 1
                 start = time.perf_counter()
                 detector.apply(frame)

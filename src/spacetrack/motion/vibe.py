@@ -115,15 +115,15 @@ class ViBe:
                 self._level = cv2.mean(grey)[0]
             grey = match_exposure(grey, self._level)
         image = frame if self.colour and frame.ndim == 3 and frame.shape[2] == 3 else grey
+        offset = (0, 0)
+        if self.compensate:
+            offset = tuple(round(v) for v in self.scene_shift.update(raw, self._guard.count - 1))
         if self._model is None:
             self._initialise(image)
             self._foreground_run = np.zeros(grey.shape, np.uint8)
-            self._offset = (0, 0)
-            if self.compensate:
-                self.scene_shift.update(raw, self._guard.count - 1)
+            self._offset = offset  # the first frame's: (0, 0)
             return np.zeros(grey.shape, np.uint8)
         if self.compensate:
-            offset = tuple(round(v) for v in self.scene_shift.update(raw, self._guard.count - 1))
             dx, dy = offset[0] - self._offset[0], offset[1] - self._offset[1]
             self._model = shift_image(self._model, dx, dy, image, axis=1)
             self._foreground_run = shift_image(self._foreground_run, dx, dy, 0)

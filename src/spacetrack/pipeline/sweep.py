@@ -2,9 +2,10 @@
 
 On multirun start it opens a parent run and exports its id as `SPACETRACK_SWEEP_PARENT_RUN_ID` (the track
 config reads it into `sweep_parent_run_id`, so each point's run becomes a child). After each job it
-records the point's overrides and `metrics.json`; at the end it writes `sweep.json`, `sweep.md` and,
-`heatmap.png` when two keys were swept (the metric over the grid) or `bars.png` when one was (the metric per
-value with the mean: over folds, `make track-cv`'s chart) into the sweep folder, logs them on the parent with the best point and the mean and std of the metric.
+records the point's overrides and `metrics.json`; at the end it writes `sweep.json`, `sweep.md` and
+`heatmap.png` when two keys were swept (the metric over the grid) or `bars.png` when one was (the metric
+per value with the mean: over folds, `make track-cv`'s chart) into the sweep folder, and logs them on the
+parent with the best point and the mean and std of the metric.
 """
 
 from __future__ import annotations
