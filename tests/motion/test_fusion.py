@@ -165,3 +165,58 @@ def test_parallel_fusion_reports_a_bad_frame_with_its_index(scene):
         fusion.apply(frame)
     with pytest.raises(ValueError, match="frame 3"):
         fusion.apply(frames[3][:32])
+    fusion.close()
+
+
+def test_parallel_fusion_is_unaffected_by_a_caller_that_reuses_its_frame_buffer(scene):
+    # The background model may still read the frame after `apply` returns: a video reader that decodes
+    # into one buffer must not change what it sees (grey input reaches it without a conversion copy).
+    frames, _ = scene(20, size=10, velocity=(3, 1), noise=4.0)
+    in_turn, parallel = _fusion(), _fusion(parallel=True)
+    buffer = np.empty_like(frames[0])
+    for frame in frames:
+        buffer[...] = frame
+        b = parallel.apply(buffer)
+        buffer[...] = 255  # the next decode starts at once
+        a = in_turn.apply(frame)
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert np.array_equal(a, b) and parallel.blobs == in_turn.blobs
+    parallel.close()
+
+
+def test_parallel_fusion_waits_for_a_background_model_that_answers_later_than_the_difference(scene):
+    # Two-frame difference (latency 0) and ViBe (latency 0): every mask needs the frame still in flight.
+    from spacetrack.motion import TwoFrameDifference
+
+    frames, _ = scene(12, size=10, velocity=(3, 1))
+
+    def fusion(**kwargs) -> Fusion:
+        return Fusion(difference=TwoFrameDifference(threshold=10), background=ViBe(), **kwargs)
+
+    in_turn, parallel = fusion(), fusion(parallel=True)
+    pairs = [(in_turn.apply(f), parallel.apply(f), in_turn.mask_index, parallel.mask_index) for f in frames]
+    assert sum(a is not None for a, *_ in pairs) == len(frames) - 1
+    for a, b, i, j in pairs:
+        assert (a is None) == (b is None) and i == j
+        assert a is None or np.array_equal(a, b)
+    parallel.close()
+
+
+class _Broken(ViBe):
+    def apply(self, frame: np.ndarray) -> np.ndarray | None:
+        if self._guard.count == 4:
+            raise RuntimeError("model failed on frame 4")
+        return super().apply(frame)
+
+
+def test_parallel_fusion_raises_what_its_background_model_raised(scene):
+    frames, _ = scene(8)
+    fusion = Fusion(difference=FiveFrameDifference(), background=_Broken(), parallel=True)
+    for frame in frames[:5]:  # frame 4 goes to the worker; the call returns before it fails
+        fusion.apply(frame)
+    with pytest.raises(RuntimeError, match="frame 4"):
+        fusion.flush()
+    fusion.reset()  # starts over: the failure is forgotten
+    assert all(fusion.apply(frame) is None for frame in frames[:2])
+    fusion.close()

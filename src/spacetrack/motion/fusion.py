@@ -12,13 +12,13 @@ background region is kept whole when the difference confirms it (`confirmed_regi
 from __future__ import annotations
 
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import cv2
 import numpy as np
 
 from spacetrack.motion.blobs import Blob, find_blobs, outlines
-from spacetrack.motion.frames import MotionDetector
+from spacetrack.motion.frames import FrameGuard, MotionDetector, to_grey
 
 
 def _smooth(mask: np.ndarray, ksize: int, level: int) -> np.ndarray:
@@ -105,8 +105,10 @@ class Fusion:
         hull_margin: "region" mode: cut each kept region down to the convex hull of the difference's pixels
             in it, grown by this many pixels; None keeps regions whole.
         hull_min_fill: cut only regions whose difference pixels fill at least this share (0-1) of them.
-        parallel: run the difference (and the filtering of its mask) in a worker thread while the calling
-            thread runs the background model, so the two use two cores; the masks are the same either way.
+        parallel: run the background model in a worker thread, a frame ahead of the calling thread, which
+            runs the difference and all the filtering, so the two use two cores; the masks are the same
+            either way. `apply` then returns while the worker still takes the frame just fed: `flush`
+            waits for it, `close` also stops the worker.
 
     When both detectors compensate camera motion the same way they share one scene-shift estimator (each
     frame's shift is measured once).
@@ -153,11 +155,17 @@ class Fusion:
         if modes[0] and modes[0] == modes[1]:
             background.scene_shift = difference.scene_shift  # both see the same frames: measure once
         self._worker: ThreadPoolExecutor | None = None
+        self._in_flight: Future | None = None  # `parallel`: the background model's work on the last frame
+        self._guard = FrameGuard()
         self.latency = max(difference.latency, background.latency)
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_ksize, close_ksize))
         self.reset()
 
     def reset(self) -> None:
+        if self._in_flight is not None:
+            self._in_flight.exception()  # let the worker finish; what it was doing is forgotten
+            self._in_flight = None
+        self._guard.reset()
         self.difference.reset()
         self.background.reset()
         # (frame index, mask) of each detector, waiting until the other one has the same frame.
@@ -172,16 +180,20 @@ class Fusion:
 
     def apply(self, frame: np.ndarray) -> np.ndarray | None:
         """Fused (H, W) uint8 mask (255 = moving) of frame `mask_index`, or None; also sets `blobs`."""
+        given = frame = self._guard.check(frame)
+        if not getattr(self.background, "colour", False):
+            frame = to_grey(frame)  # neither part looks at colour: convert once for both
         if self.parallel:
+            self.flush()  # the background model's previous frame: at most one frame in flight
             if self._worker is None:
                 self._worker = ThreadPoolExecutor(1, thread_name_prefix="fusion")
-            pending = self._worker.submit(self._step, self.difference, frame, 0)
-            try:
-                self._step(self.background, frame, 1)
-            finally:
-                error = pending.exception()  # waits for the worker, also when the background raised
-            if error is not None:
-                raise error
+            if np.may_share_memory(frame, given):
+                frame = frame.copy()  # the worker may still read it after this call returns
+            self._in_flight = self._worker.submit(self._background_mask, frame)
+            self._step(self.difference, frame, 0)
+            first, second = self._pending
+            if first and (not second or second[-1][0] < first[0][0]):
+                self.flush()  # the difference is ahead (a longer latency than the background's)
         else:
             self._step(self.difference, frame, 0)
             self._step(self.background, frame, 1)
@@ -208,11 +220,29 @@ class Fusion:
         self.blobs = find_blobs(fused, min_area=self.min_area)
         return fused
 
+    def flush(self) -> None:
+        """Wait until the background model has taken every frame fed so far (`parallel` leaves it working
+        on the last frame when `apply` returns); raises what it raised."""
+        if self._in_flight is not None:
+            in_flight, self._in_flight = self._in_flight, None
+            mask_index, mask = in_flight.result()
+            if mask is not None:
+                self._pending[1].append((mask_index, self._prepare(mask)))
+
     def close(self) -> None:
-        """Stop the worker thread of `parallel` (a later `apply` starts a new one)."""
-        if self._worker is not None:
-            self._worker.shutdown()
-            self._worker = None
+        """Wait for the background model, then stop the worker thread of `parallel` (a later `apply`
+        starts a new one)."""
+        try:
+            self.flush()
+        finally:
+            if self._worker is not None:
+                self._worker.shutdown()
+                self._worker = None
+
+    def _background_mask(self, frame: np.ndarray) -> tuple[int, np.ndarray | None]:
+        """Runs on the worker: the background model's raw mask of `frame` and its frame index."""
+        mask = self.background.apply(frame)
+        return self.background.mask_index, mask
 
     def _step(self, detector: MotionDetector, frame: np.ndarray, side: int) -> None:
         """Feed `frame` to one detector and queue its filtered mask (if any) on `side` (0: difference)."""
