@@ -35,6 +35,7 @@ from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import DetectionStream, GroundTruthDetector, StageTimer, YoloDetector
+from spacetrack.pipeline.cache import CachedSequence
 from spacetrack.pipeline.detector import resolve_device
 from spacetrack.pipeline.runner import cached_frames
 from spacetrack.pipeline.sources import FrameSource, sequence_source
@@ -181,11 +182,15 @@ def main() -> None:
                 FrameSource(args.sequence, "cache run", 10.0, len(frames), iter(frames))
             )
         )
-        rows = np.concatenate([r.rows for r in recorded])
-        flags = np.concatenate([np.column_stack([r.dynamic, r.classes]) for r in recorded]).astype(int)
-        tracker = instantiate(cfg.tracker)
-        start = time.perf_counter()
-        for item in cached_frames(rows, flags, len(frames), None):
+        from_cache = CachedSequence(
+            rows=np.concatenate([r.rows for r in recorded]),
+            classes=np.concatenate([r.classes for r in recorded]),
+            num_frames=len(frames),
+            blobs=[r.blobs for r in recorded],
+        )
+        tracker, dynamic_filter = instantiate(cfg.tracker), instantiate(cfg.dynamic)
+        start = time.perf_counter()  # the dynamic flags come from the cached blobs, as in `make track`
+        for item in cached_frames(from_cache, dynamic_filter, None):
             tracker.step(
                 item.rows[item.dynamic, 2:6], item.rows[item.dynamic, 6], item.rows[item.dynamic, 10:]
             )

@@ -21,7 +21,7 @@ from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.dynamic import DynamicHold
-from spacetrack.pipeline.build import build_stream, cache_key, resolve_weights
+from spacetrack.pipeline.build import build_motion_stream, build_stream, cache_key, resolve_weights
 from spacetrack.pipeline.cache import DetectionCache
 from spacetrack.pipeline.runner import SequenceResult, run_source
 from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
@@ -107,6 +107,8 @@ def run(cfg: DictConfig) -> dict[str, float]:
                 source,
                 tracker=hydra.utils.instantiate(cfg.tracker),
                 make_stream=make_stream,
+                make_motion_stream=lambda: build_motion_stream(cfg),
+                dynamic_filter=hydra.utils.instantiate(cfg.dynamic),
                 cache=cache,
                 key=cache_key(cfg, weights, source),
                 use_filter=cfg.dynamic_filter,

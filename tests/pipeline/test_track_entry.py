@@ -83,17 +83,62 @@ def test_stale_cache_is_refused_or_rebuilt(smoke_dataset, tmp_path):
     common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
     common += ["video=false", "max_frames=8"]
     track.run(track_config(smoke_dataset, tmp_path, *common))
-    meta = next((tmp_path / "cache").glob("*/*.json"))
+    meta = next((tmp_path / "cache").glob(f"*/{STATIC_SEQ}.json"))
     before = meta.read_text()
-    changed = [*common, "dynamic.max_distance=3.0"]
+    changed = [*common, "detector.score=0.9"]
     with pytest.raises(
-        CacheMismatchError, match=r"motion: cached '\w+', configured '\w+'.*cache.rebuild=true"
+        CacheMismatchError, match=r"detector: cached '\w+', configured '\w+'.*cache.rebuild=true"
     ):
         track.run(track_config(smoke_dataset, tmp_path, *changed, "cache.rebuild=false"))
     assert meta.read_text() == before
     rebuilt = track.run(track_config(smoke_dataset, tmp_path, *changed))
     assert rebuilt["cached_sequences"] == 0 and meta.read_text() != before
     assert track.run(track_config(smoke_dataset, tmp_path, *changed))["cached_sequences"] == 1
+
+
+def _no_networks(*args, **kwargs):
+    raise AssertionError("cached detections must not build the detection stream")
+
+
+@pytest.mark.slow
+def test_new_motion_settings_rerun_the_motion_stage_only(smoke_dataset, tmp_path, monkeypatch):
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
+    common += ["video=false", "max_frames=40"]
+    default = track.run(track_config(smoke_dataset, tmp_path, *common))
+    blobs_meta = next((tmp_path / "cache").glob(f"*/{STATIC_SEQ}.blobs.json"))
+    detections_meta = blobs_meta.with_name(f"{STATIC_SEQ}.json")
+    before, detections_before = blobs_meta.read_text(), detections_meta.read_text()
+    changed = [*common, "motion.min_area=400"]  # drops the small blobs: fewer moving boxes
+    with pytest.raises(CacheMismatchError, match=r"blobs\.json is stale: motion: cached '\w+', configured"):
+        track.run(track_config(smoke_dataset, tmp_path, *changed, "cache.rebuild=false"))
+    assert blobs_meta.read_text() == before
+    fresh = track.run(track_config(smoke_dataset, tmp_path / "fresh", *changed, "cache.enabled=false"))
+    assert fresh["fn"] > default["fn"]  # the setting matters
+    monkeypatch.setattr(track, "build_stream", _no_networks)
+    rerun = track.run(track_config(smoke_dataset, tmp_path, *changed))
+    assert rerun["cached_sequences"] == 1
+    assert blobs_meta.read_text() != before and detections_meta.read_text() == detections_before
+    # the same tracks as the whole pipeline run afresh with those settings
+    for k in ("mota", "fp", "fn", "idsw"):
+        assert rerun[k] == fresh[k], k
+    monkeypatch.setattr(track, "build_motion_stream", _no_networks)  # now both parts are cached
+    assert track.run(track_config(smoke_dataset, tmp_path, *changed))["mota"] == fresh["mota"]
+
+
+@pytest.mark.slow
+def test_new_dynamic_thresholds_retrack_from_the_cache(smoke_dataset, tmp_path, monkeypatch):
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
+    common += ["video=false", "max_frames=40"]
+    default = track.run(track_config(smoke_dataset, tmp_path, *common))
+    strict = [*common, "dynamic.min_overlap=1.0", "dynamic.min_coverage=1.0", "dynamic.max_distance=0"]
+    fresh = track.run(track_config(smoke_dataset, tmp_path / "fresh", *strict, "cache.enabled=false"))
+    assert fresh["fn"] > default["fn"]  # the thresholds matter: fewer boxes count as moving
+    monkeypatch.setattr(track, "build_stream", _no_networks)
+    monkeypatch.setattr(track, "build_motion_stream", _no_networks)
+    cached = track.run(track_config(smoke_dataset, tmp_path, *strict))
+    assert cached["cached_sequences"] == 1
+    for k in ("mota", "fp", "fn", "idsw"):
+        assert cached[k] == fresh[k], k
 
 
 def test_fold_without_trained_model_names_the_command(smoke_dataset, tmp_path):

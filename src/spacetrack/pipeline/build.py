@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
@@ -112,14 +113,14 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
         reid = file_hash(weights.reid) + ("" if backend == "torch" else f" {backend}")
         if cfg.reid.min_score > 0:
             reid += f" min_score={cfg.reid.min_score}"
-    # The fusion's `parallel` only changes how fast the same masks come.
+    # The fusion's `parallel` only changes how fast the same masks come; the dynamic thresholds apply to
+    # the cached blobs.
     motion_settings = {k: v for k, v in resolved_dict(cfg.motion).items() if k != "parallel"}
-    motion = {"motion": motion_settings, "dynamic": resolved_dict(cfg.dynamic)}
     return CacheKey(
         detector=detector_id,
         reid=reid,
         enhance=config_hash(resolved_dict(cfg.enhance)),
-        motion=config_hash(motion),
+        motion=config_hash({"motion": motion_settings}),
         source=f"{source.description} ({source.num_frames} frames)",
     )
 
@@ -151,4 +152,26 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
         overlap_motion=cfg.overlap_motion,
         overlap_reid=cfg.overlap_reid,
         reid_min_score=cfg.reid.min_score,
+    )
+
+
+class _NoBoxes:
+    """A detector that finds nothing: drives a `DetectionStream` of the motion stage alone."""
+
+    def begin(self, source: FrameSource) -> None:
+        pass
+
+    def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
+        return np.zeros((0, 6))
+
+
+def build_motion_stream(cfg: DictConfig) -> DetectionStream:
+    """The motion stage alone (no enhancement, no network): the blobs of each frame for cached detections."""
+    return DetectionStream(
+        enhancer=lambda rgb: rgb,
+        detector=_NoBoxes(),
+        encoder=None,
+        motion=instantiate(cfg.motion),
+        dynamic_filter=instantiate(cfg.dynamic),
+        overlap_motion=False,
     )

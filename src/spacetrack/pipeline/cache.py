@@ -1,12 +1,18 @@
-"""The detection cache: a sequence's detector boxes and re-ID features, saved once, re-tracked at will.
+"""The detection cache: a sequence's detector boxes, re-ID features and motion blobs, saved once, re-tracked
+at will.
 
-Per sequence `<folder>/<name>.npy` holds the detections in the DESIGN.md layout, an (N, 10 + D) float
-array `frame,-1,x,y,w,h,confidence,-1,-1,-1` + D-dim re-ID feature (so `python -m
-spacetrack.track_detections` runs on it alone); `<name>.flags.npy` (N, 2) int holds each row's
-dynamic flag (1 = a moving target by the motion stage) and class; `<name>.json` says what made them:
-detector (weights hash and settings), re-ID weights hash, enhancement, motion settings, source and
-frame count. The JSON is written last, so a cache without a matching JSON is never read; every file is
-written atomically.
+Per sequence, two parts, each valid only with its sidecar, which is written last:
+- what the networks made: `<folder>/<name>.npy` holds the detections in the DESIGN.md layout, an
+  (N, 10 + D) float array `frame,-1,x,y,w,h,confidence,-1,-1,-1` + D-dim re-ID feature (so `python -m
+  spacetrack.track_detections` runs on it alone), `<name>.classes.npy` (N,) each row's class, and
+  `<name>.json` names the detector (weights hash and settings), re-ID weights, enhancement, source and
+  frame count;
+- what the motion stage made: `<name>.blobs.npy` (B, 8) `frame, cx, cy, x, y, w, h, area` (the moving
+  blobs each frame's detections were matched with; frames 1-based) and `<name>.blobs.json` naming the
+  motion settings and the source.
+The dynamic flags are not stored: they come from the boxes and the blobs with the configured thresholds
+(`conf/dynamic/`), so a new threshold re-tracks from the cache, and new motion settings re-run the motion
+stage only, never a network. Every file is written atomically.
 """
 
 from __future__ import annotations
@@ -20,9 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from spacetrack.io import atomic_path, atomic_write_text
+from spacetrack.motion.blobs import Blob
 
 log = logging.getLogger(__name__)
-FORMAT = 1
+FORMAT = 2
+BLOB_COLUMNS = "frame, cx, cy, x, y, w, h, area"
 
 
 class CacheMismatchError(ValueError):
@@ -37,7 +45,10 @@ def config_hash(value: object) -> str:
 
 @dataclass(frozen=True)
 class CacheKey:
-    """Everything that changes a sequence's cached detections; two equal keys give equal caches."""
+    """Everything that changes a sequence's cached detections; two equal keys give equal caches.
+
+    `motion` keys the blobs only: the detections stay valid when it changes.
+    """
 
     detector: str
     reid: str
@@ -45,11 +56,63 @@ class CacheKey:
     motion: str
     source: str
 
-    def differences(self, other: dict) -> list[str]:
-        mine = asdict(self)
-        return [
-            f"{k}: cached {other.get(k)!r}, configured {v!r}" for k, v in mine.items() if other.get(k) != v
-        ]
+    def networks(self) -> dict[str, str]:
+        return {k: v for k, v in asdict(self).items() if k != "motion"}
+
+    def blobs(self) -> dict[str, str]:
+        return {"motion": self.motion, "source": self.source}
+
+
+@dataclass
+class CachedSequence:
+    """rows (N, 10 + D) and classes (N,) of frames 1..num_frames; `blobs` each frame's moving blobs (a
+    list per frame; None for a frame means no motion stage: every detection counts as dynamic), or None
+    when the motion stage must run again."""
+
+    rows: np.ndarray
+    classes: np.ndarray
+    num_frames: int
+    blobs: list[list[Blob] | None] | None = None
+
+
+def blob_table(blobs: list[list[Blob] | None]) -> np.ndarray:
+    """(B, 8) float64 `frame, cx, cy, x, y, w, h, area` of per-frame blob lists (frame 1 first)."""
+    rows = [
+        (frame, *b.centroid, *b.tlwh, b.area)
+        for frame, frame_blobs in enumerate(blobs, start=1)
+        for b in frame_blobs or ()
+    ]
+    return np.array(rows, dtype=np.float64).reshape(-1, 8)
+
+
+def blobs_by_frame(table: np.ndarray, num_frames: int) -> list[list[Blob]]:
+    """The per-frame blob lists of frames 1..num_frames from a `blob_table`."""
+    out: list[list[Blob]] = [[] for _ in range(num_frames)]
+    for frame, cx, cy, x, y, w, h, area in table.tolist():
+        out[int(frame) - 1].append(Blob((cx, cy), (int(x), int(y), int(w), int(h)), area))
+    return out
+
+
+def _differences(expected: dict, meta: dict) -> list[str]:
+    if meta.get("format") != FORMAT:
+        return [f"format {meta.get('format')!r}, this version reads {FORMAT}"]
+    cached = meta.get("key", {})
+    return [
+        f"{k}: cached {cached.get(k)!r}, configured {v!r}" for k, v in expected.items() if cached.get(k) != v
+    ]
+
+
+def _read_meta(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def _save_arrays(*pairs: tuple[Path, np.ndarray]) -> None:
+    for path, array in pairs:
+        with atomic_path(path) as tmp, tmp.open("wb") as f:
+            np.save(f, array)
 
 
 class DetectionCache:
@@ -59,39 +122,65 @@ class DetectionCache:
     def __init__(self, folder: str | Path, *, rebuild: bool = True) -> None:
         self.folder, self.rebuild = Path(folder), rebuild
 
-    def paths(self, name: str) -> tuple[Path, Path, Path]:
-        """(detections .npy, flags .npy, sidecar .json) of sequence `name`."""
-        return self.folder / f"{name}.npy", self.folder / f"{name}.flags.npy", self.folder / f"{name}.json"
+    def paths(self, name: str) -> dict[str, Path]:
+        """The files of sequence `name`: rows, classes, meta (the detections' sidecar), blobs, blobs_meta."""
+        files = {"rows": ".npy", "classes": ".classes.npy", "meta": ".json"}
+        files |= {"blobs": ".blobs.npy", "blobs_meta": ".blobs.json"}
+        return {part: self.folder / f"{name}{suffix}" for part, suffix in files.items()}
 
-    def load(self, name: str, key: CacheKey) -> tuple[np.ndarray, np.ndarray, int] | None:
-        """(rows (N, 10 + D), flags (N, 2), number of frames) when a cache made by `key` exists, else None.
+    def load(self, name: str, key: CacheKey) -> CachedSequence | None:
+        """The cached detections of `name` made by `key` (with the blobs when they match too), or None.
 
-        A cache made by another key is None when `rebuild` (it will be overwritten), else a
-        CacheMismatchError naming the sidecar and what differs. A damaged cache is rebuilt likewise.
+        A part made by another key is missing (None, or `blobs` None) when `rebuild` (it will be
+        overwritten), else a CacheMismatchError naming the sidecar and what differs. A damaged part is
+        rebuilt likewise.
         """
-        rows_path, flags_path, meta_path = self.paths(name)
-        if not meta_path.is_file():
+        paths = self.paths(name)
+        if not paths["meta"].is_file():
             return None
-        try:
-            meta = json.loads(meta_path.read_text())
-        except json.JSONDecodeError:
-            meta = {}
-        problems = (
-            key.differences(meta.get("key", {})) if meta.get("format") == FORMAT else ["unreadable sidecar"]
-        )
-        rows = flags = None
+        meta = _read_meta(paths["meta"])
+        problems = _differences(key.networks(), meta)
         if not problems:
             try:
-                rows, flags = np.load(rows_path), np.load(flags_path)
+                rows, classes = np.load(paths["rows"]), np.load(paths["classes"])
             except (OSError, ValueError) as err:
                 problems = [f"unreadable arrays ({err})"]
             else:
-                if len(rows) != len(flags) or len(rows) != meta.get("num_detections"):
+                if not len(rows) == len(classes) == meta.get("num_detections"):
                     problems = [
-                        f"{len(rows)} detections, {len(flags)} flags, sidecar says {meta.get('num_detections')}"
+                        f"{len(rows)} detections, {len(classes)} classes, sidecar says "
+                        f"{meta.get('num_detections')}"
                     ]
+        if problems:
+            self._stale(paths["meta"], problems)
+            return None
+        cached = CachedSequence(rows, classes, int(meta["num_frames"]))
+        cached.blobs = self._load_blobs(paths, key, cached.num_frames)
+        return cached
+
+    def _load_blobs(self, paths: dict[str, Path], key: CacheKey, num_frames: int) -> list | None:
+        if not paths["blobs_meta"].is_file():
+            return None
+        meta = _read_meta(paths["blobs_meta"])
+        problems = _differences(key.blobs(), meta)
         if not problems:
-            return rows, flags, int(meta["num_frames"])
+            try:
+                table = np.load(paths["blobs"])
+            except (OSError, ValueError) as err:
+                problems = [f"unreadable blobs ({err})"]
+            else:
+                if table.ndim != 2 or table.shape[1] != 8 or len(table) != meta.get("num_blobs"):
+                    problems = [
+                        f"blob table of shape {table.shape}, sidecar says {meta.get('num_blobs')} rows"
+                    ]
+        if problems:
+            self._stale(paths["blobs_meta"], problems)
+            return None
+        if not meta.get("motion_stage", True):
+            return [None] * num_frames
+        return blobs_by_frame(table, num_frames)
+
+    def _stale(self, meta_path: Path, problems: list[str]) -> None:
         if not self.rebuild:
             raise CacheMismatchError(
                 f"detection cache {meta_path} is stale: "
@@ -99,22 +188,38 @@ class DetectionCache:
                 + " (set cache.rebuild=true to rebuild it, or delete it)"
             )
         log.info("rebuilding detection cache %s: %s", meta_path, "; ".join(problems))
-        return None
 
-    def save(self, name: str, key: CacheKey, rows: np.ndarray, flags: np.ndarray, *, num_frames: int) -> None:
-        """Write sequence `name`'s rows and flags, then the sidecar that makes them valid."""
+    def save(
+        self, name: str, key: CacheKey, rows: np.ndarray, classes: np.ndarray, *, num_frames: int
+    ) -> None:
+        """Write sequence `name`'s rows and classes, then the sidecar that makes them valid."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        rows_path, flags_path, meta_path = self.paths(name)
-        meta_path.unlink(missing_ok=True)  # invalid until the new arrays are complete
-        for path, array in ((rows_path, rows), (flags_path, flags)):
-            with atomic_path(path) as tmp, tmp.open("wb") as f:
-                np.save(f, array)
+        paths = self.paths(name)
+        paths["meta"].unlink(missing_ok=True)  # invalid until the new arrays are complete
+        _save_arrays((paths["rows"], rows), (paths["classes"], classes))
         meta = {
             "format": FORMAT,
-            "key": asdict(key),
+            "key": key.networks(),
             "num_detections": len(rows),
             "num_frames": num_frames,
             "feature_dim": int(rows.shape[1]) - 10,
-            "layout": "frame,-1,x,y,w,h,confidence,-1,-1,-1 + feature; flags: dynamic, class",
+            "layout": "frame,-1,x,y,w,h,confidence,-1,-1,-1 + feature; classes: one per row",
         }
-        atomic_write_text(meta_path, json.dumps(meta, indent=2) + "\n")
+        atomic_write_text(paths["meta"], json.dumps(meta, indent=2) + "\n")
+
+    def save_blobs(self, name: str, key: CacheKey, blobs: list[list[Blob] | None]) -> None:
+        """Write the per-frame moving blobs of sequence `name` (None per frame: no motion stage)."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        paths = self.paths(name)
+        paths["blobs_meta"].unlink(missing_ok=True)
+        table = blob_table(blobs)
+        _save_arrays((paths["blobs"], table))
+        meta = {
+            "format": FORMAT,
+            "key": key.blobs(),
+            "num_blobs": len(table),
+            "num_frames": len(blobs),
+            "motion_stage": not blobs or blobs[0] is not None,
+            "layout": BLOB_COLUMNS,
+        }
+        atomic_write_text(paths["blobs_meta"], json.dumps(meta, indent=2) + "\n")

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from spacetrack.motion.dynamic import DynamicHold
-from spacetrack.pipeline.cache import CacheKey, DetectionCache
+from spacetrack.motion.dynamic import DynamicFilter, DynamicHold
+from spacetrack.pipeline.cache import CachedSequence, CacheKey, DetectionCache
 from spacetrack.pipeline.outputs import Annotator
 from spacetrack.pipeline.sources import FrameSource
-from spacetrack.pipeline.stages import DetectionStream, FrameDetections
+from spacetrack.pipeline.stages import DetectionStream, FrameDetections, dynamic_flags
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.tracking import DeepSort
 from spacetrack.tracking.io import write_mot_results
@@ -41,16 +41,20 @@ class SequenceResult:
 
 
 def cached_frames(
-    rows: np.ndarray, flags: np.ndarray, num_frames: int, images: Iterable[np.ndarray] | None
+    cached: CachedSequence, dynamic_filter: DynamicFilter, images: Iterable[np.ndarray] | None
 ) -> Iterator[FrameDetections]:
-    """The per-frame view of cached detections, frames 1..num_frames, with images when given."""
-    frames = rows[:, 0].astype(int)
-    bounds = np.searchsorted(frames, np.arange(1, num_frames + 2))
+    """The per-frame view of cached detections, frames 1..num_frames, flagged dynamic by the cached blobs
+    and `dynamic_filter`, with images when given."""
+    rows, blobs = cached.rows, cached.blobs
+    if blobs is None:
+        raise RuntimeError("cached detections without their motion blobs: run the motion stage first")
+    bounds = np.searchsorted(rows[:, 0].astype(int), np.arange(1, cached.num_frames + 2))
     image_iter = iter(images) if images is not None else None
-    for f in range(1, num_frames + 1):
+    for f in range(1, cached.num_frames + 1):
         part = slice(bounds[f - 1], bounds[f])
         image = next(image_iter) if image_iter is not None else None
-        yield FrameDetections(f, rows[part], flags[part, 0].astype(bool), flags[part, 1], image)
+        dynamic = dynamic_flags(dynamic_filter, rows[part], blobs[f - 1])
+        yield FrameDetections(f, rows[part], dynamic, cached.classes[part], image, blobs[f - 1])
 
 
 def _recording(stream: Iterator[FrameDetections], sink: list[FrameDetections]) -> Iterator[FrameDetections]:
@@ -64,6 +68,8 @@ def run_source(
     *,
     tracker: DeepSort,
     make_stream: Callable[[], DetectionStream],
+    make_motion_stream: Callable[[], DetectionStream],
+    dynamic_filter: DynamicFilter,
     cache: DetectionCache | None,
     key: CacheKey,
     use_filter: bool,
@@ -75,6 +81,9 @@ def run_source(
     """Track `source`; write `<out_dir>/<name>.txt` (MOT) and, with `video`, `<name>.mp4`.
 
     make_stream: builds the `DetectionStream` (loads the networks) only if the cache cannot serve.
+    make_motion_stream: builds a stream of the motion stage alone, for cached detections whose blobs were
+        made by other motion settings.
+    dynamic_filter: flags cached detections dynamic from their blobs (the stream has its own).
     use_filter: only detections that the motion stage marks dynamic reach the tracker ...
     hold: ... and, with a `DynamicHold`, those it holds for tracks the motion stage lost for a while.
     """
@@ -82,9 +91,22 @@ def run_source(
     cached = cache.load(source.name, key) if cache is not None else None
     recorded: list[FrameDetections] = []
     timer = StageTimer()
+    if cached is not None and cached.blobs is None:  # new motion settings: the motion stage alone again
+        motion_stream = make_motion_stream()
+        timer = motion_stream.timer
+        passed = tqdm(
+            motion_stream.run(source), total=source.num_frames, desc=f"{source.name} motion", unit="frame",
+            disable=not progress, leave=False,
+        )  # fmt: skip
+        cached.blobs = [item.blobs for item in passed]
+        if len(cached.blobs) != cached.num_frames:
+            raise ValueError(
+                f"{source.description}: {len(cached.blobs)} frames now, the cached detections have "
+                f"{cached.num_frames}"
+            )
+        cache.save_blobs(source.name, key, cached.blobs)
     if cached is not None:
-        rows, flags, num_frames = cached
-        stream: Iterator[FrameDetections] = cached_frames(rows, flags, num_frames, source if video else None)
+        stream: Iterator[FrameDetections] = cached_frames(cached, dynamic_filter, source if video else None)
     else:
         detection_stream = make_stream()
         timer = detection_stream.timer
@@ -129,8 +151,9 @@ def run_source(
         write_mot_results(mot_path, rows_out)
     if cached is None and cache is not None:
         det_rows = np.concatenate([r.rows for r in recorded])
-        flags = np.concatenate([np.column_stack([r.dynamic, r.classes]) for r in recorded]).astype(np.int64)
-        cache.save(source.name, key, det_rows, flags.reshape(-1, 2), num_frames=num_frames)
+        classes = np.concatenate([r.classes for r in recorded]).astype(np.int64)
+        cache.save(source.name, key, det_rows, classes, num_frames=num_frames)
+        cache.save_blobs(source.name, key, [r.blobs for r in recorded])
     return SequenceResult(
         name=source.name,
         rows=rows_out,

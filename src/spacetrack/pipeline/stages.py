@@ -34,13 +34,20 @@ HEAD_COLUMNS = 10  # frame,-1,x,y,w,h,confidence,-1,-1,-1 before the appearance 
 @dataclass
 class FrameDetections:
     """One frame's detections: `rows` in the DESIGN.md layout (N, 10 + D), `dynamic` (N,) bool, `classes`
-    (N,) class indices, and the RGB `image` when the stream keeps images (for drawing)."""
+    (N,) class indices, the RGB `image` when the stream keeps images (for drawing), and the moving `blobs`
+    the dynamic flags came from (None without a motion stage)."""
 
     frame: int
     rows: np.ndarray
     dynamic: np.ndarray
     classes: np.ndarray
     image: np.ndarray | None
+    blobs: list[Blob] | None = None
+
+
+def dynamic_flags(dynamic_filter: DynamicFilter, rows: np.ndarray, blobs: list[Blob] | None) -> np.ndarray:
+    """(N,) bool: which detection rows (DESIGN layout) move by `blobs`; all of them with no motion stage."""
+    return np.ones(len(rows), bool) if blobs is None else dynamic_filter(rows[:, 2:6], blobs)
 
 
 def detection_rows(frame: int, boxes: np.ndarray, features: np.ndarray) -> np.ndarray:
@@ -187,5 +194,5 @@ class DetectionStream:
     def _resolve(self, item: tuple, blobs: list[Blob] | None) -> FrameDetections:
         frame, image, rows, classes = item
         with self.timer("dynamic"):
-            dynamic = np.ones(len(rows), bool) if blobs is None else self.dynamic_filter(rows[:, 2:6], blobs)
-        return FrameDetections(frame, rows, dynamic, classes.astype(int), image)
+            dynamic = dynamic_flags(self.dynamic_filter, rows, blobs)
+        return FrameDetections(frame, rows, dynamic, classes.astype(int), image, blobs)
