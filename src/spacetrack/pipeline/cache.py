@@ -7,9 +7,9 @@ Per sequence, two parts, each valid only with its sidecar, which is written last
   spacetrack.track_detections` runs on it alone), `<name>.classes.npy` (N,) each row's class, and
   `<name>.json` names the detector (weights hash and settings), re-ID weights, enhancement, source and
   frame count;
-- what the motion stage made: `<name>.blobs.npy` (B, 8) `frame, cx, cy, x, y, w, h, area` (the moving
-  blobs each frame's detections were matched with; frames 1-based) and `<name>.blobs.json` naming the
-  motion settings and the source.
+- what the motion stage made, one pair per motion setting: `<name>.blobs-<motion hash>.npy` (B, 8)
+  `frame, cx, cy, x, y, w, h, area` (the moving blobs each frame's detections are matched with; frames
+  1-based) and `<name>.blobs-<motion hash>.json` naming the motion settings and the source.
 The dynamic flags are not stored: they come from the boxes and the blobs with the configured thresholds
 (`conf/dynamic/`), so a new threshold re-tracks from the cache, and new motion settings re-run the motion
 stage only, never a network. Every file is written atomically.
@@ -122,10 +122,12 @@ class DetectionCache:
     def __init__(self, folder: str | Path, *, rebuild: bool = True) -> None:
         self.folder, self.rebuild = Path(folder), rebuild
 
-    def paths(self, name: str) -> dict[str, Path]:
-        """The files of sequence `name`: rows, classes, meta (the detections' sidecar), blobs, blobs_meta."""
+    def paths(self, name: str, key: CacheKey) -> dict[str, Path]:
+        """The files of sequence `name`: rows, classes, meta (the detections' sidecar), and blobs,
+        blobs_meta of `key`'s motion settings (one pair per setting, so a sweep over motion settings
+        computes each setting's blobs once)."""
         files = {"rows": ".npy", "classes": ".classes.npy", "meta": ".json"}
-        files |= {"blobs": ".blobs.npy", "blobs_meta": ".blobs.json"}
+        files |= {"blobs": f".blobs-{key.motion}.npy", "blobs_meta": f".blobs-{key.motion}.json"}
         return {part: self.folder / f"{name}{suffix}" for part, suffix in files.items()}
 
     def load(self, name: str, key: CacheKey) -> CachedSequence | None:
@@ -135,7 +137,7 @@ class DetectionCache:
         overwritten), else a CacheMismatchError naming the sidecar and what differs. A damaged part is
         rebuilt likewise.
         """
-        paths = self.paths(name)
+        paths = self.paths(name, key)
         if not paths["meta"].is_file():
             return None
         meta = _read_meta(paths["meta"])
@@ -194,7 +196,7 @@ class DetectionCache:
     ) -> None:
         """Write sequence `name`'s rows and classes, then the sidecar that makes them valid."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        paths = self.paths(name)
+        paths = self.paths(name, key)
         paths["meta"].unlink(missing_ok=True)  # invalid until the new arrays are complete
         _save_arrays((paths["rows"], rows), (paths["classes"], classes))
         meta = {
@@ -210,7 +212,7 @@ class DetectionCache:
     def save_blobs(self, name: str, key: CacheKey, blobs: list[list[Blob] | None]) -> None:
         """Write the per-frame moving blobs of sequence `name` (None per frame: no motion stage)."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        paths = self.paths(name)
+        paths = self.paths(name, key)
         paths["blobs_meta"].unlink(missing_ok=True)
         table = blob_table(blobs)
         _save_arrays((paths["blobs"], table))
