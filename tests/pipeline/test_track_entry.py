@@ -103,29 +103,34 @@ def _no_networks(*args, **kwargs):
 @pytest.mark.slow
 def test_new_motion_settings_rerun_the_motion_stage_only(smoke_dataset, tmp_path, monkeypatch):
     common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
-    common += ["video=false", "max_frames=40"]
-    default = track.run(track_config(smoke_dataset, tmp_path, *common))
+    common += ["max_frames=40"]
+    default = track.run(track_config(smoke_dataset, tmp_path, *common, "video=false"))
     folder = next((tmp_path / "cache").iterdir())
     detections_meta = folder / f"{STATIC_SEQ}.json"
     detections_before = detections_meta.read_text()
     (first_blobs,) = folder.glob(f"{STATIC_SEQ}.blobs-*.json")
     changed = [*common, "motion.min_area=400"]  # drops the small blobs: fewer moving boxes
-    fresh = track.run(track_config(smoke_dataset, tmp_path / "fresh", *changed, "cache.enabled=false"))
+    fresh = track.run(
+        track_config(smoke_dataset, tmp_path / "fresh", *changed, "cache.enabled=false", "video=false")
+    )
     assert fresh["fn"] > default["fn"]  # the setting matters
     monkeypatch.setattr(track, "build_stream", _no_networks)
-    rerun = track.run(track_config(smoke_dataset, tmp_path, *changed))
+    rerun = track.run(
+        track_config(smoke_dataset, tmp_path, *changed, "video=true")
+    )  # one pass over the frames
     assert rerun["cached_sequences"] == 1 and detections_meta.read_text() == detections_before
+    assert (tmp_path / "out" / f"{STATIC_SEQ}.mp4").stat().st_size > 0
     assert len(list(folder.glob(f"{STATIC_SEQ}.blobs-*.json"))) == 2 and first_blobs.is_file()
     # the same tracks as the whole pipeline run afresh with those settings
     for k in ("mota", "fp", "fn", "idsw"):
         assert rerun[k] == fresh[k], k
     monkeypatch.setattr(track, "build_motion_stream", _no_networks)  # both settings' blobs are cached now
-    assert track.run(track_config(smoke_dataset, tmp_path, *changed))["mota"] == fresh["mota"]
-    assert track.run(track_config(smoke_dataset, tmp_path, *common))["mota"] == default["mota"]
+    assert track.run(track_config(smoke_dataset, tmp_path, *changed, "video=false"))["mota"] == fresh["mota"]
+    assert track.run(track_config(smoke_dataset, tmp_path, *common, "video=false"))["mota"] == default["mota"]
     # blobs that do not belong to the source are refused, or made again
     first_blobs.write_text(first_blobs.read_text().replace("(40 frames)", "(41 frames)"))
     with pytest.raises(CacheMismatchError, match=r"blobs-\w+\.json is stale: source: cached"):
-        track.run(track_config(smoke_dataset, tmp_path, *common, "cache.rebuild=false"))
+        track.run(track_config(smoke_dataset, tmp_path, *common, "cache.rebuild=false", "video=false"))
 
 
 @pytest.mark.slow

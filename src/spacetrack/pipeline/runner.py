@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from spacetrack.motion.blobs import Blob
 from spacetrack.motion.dynamic import DynamicFilter, DynamicHold
 from spacetrack.pipeline.cache import CachedSequence, CacheKey, DetectionCache
 from spacetrack.pipeline.outputs import Annotator
@@ -41,20 +42,41 @@ class SequenceResult:
 
 
 def cached_frames(
-    cached: CachedSequence, dynamic_filter: DynamicFilter, images: Iterable[np.ndarray] | None
+    cached: CachedSequence,
+    dynamic_filter: DynamicFilter,
+    images: Iterable[np.ndarray] | None = None,
+    motion: Iterator[FrameDetections] | None = None,
 ) -> Iterator[FrameDetections]:
-    """The per-frame view of cached detections, frames 1..num_frames, flagged dynamic by the cached blobs
-    and `dynamic_filter`, with images when given."""
-    rows, blobs = cached.rows, cached.blobs
-    if blobs is None:
-        raise RuntimeError("cached detections without their motion blobs: run the motion stage first")
+    """The per-frame view of cached detections, frames 1..num_frames, flagged dynamic by `dynamic_filter`
+    from the cached blobs, with images when given.
+
+    motion: instead of the cached blobs (made by other motion settings), the frames of a stream of the
+        motion stage alone, with their images when it keeps them; once every frame is out, their blobs
+        are `cached.blobs`.
+    """
+    if (cached.blobs is None) == (motion is None):
+        raise ValueError("cached detections take either their cached blobs or a motion stream")
+    rows = cached.rows
     bounds = np.searchsorted(rows[:, 0].astype(int), np.arange(1, cached.num_frames + 2))
     image_iter = iter(images) if images is not None else None
+    fresh: list[list[Blob] | None] = []
     for f in range(1, cached.num_frames + 1):
         part = slice(bounds[f - 1], bounds[f])
-        image = next(image_iter) if image_iter is not None else None
-        dynamic = dynamic_flags(dynamic_filter, rows[part], blobs[f - 1])
-        yield FrameDetections(f, rows[part], dynamic, cached.classes[part], image, blobs[f - 1])
+        if motion is not None:
+            item = next(motion, None)
+            if item is None:
+                raise ValueError(
+                    f"the source ended after {f - 1} frames; the cached detections have {cached.num_frames}"
+                )
+            blobs, image = item.blobs, item.image
+            fresh.append(blobs)
+        else:
+            blobs = cached.blobs[f - 1]
+            image = next(image_iter) if image_iter is not None else None
+        dynamic = dynamic_flags(dynamic_filter, rows[part], blobs)
+        yield FrameDetections(f, rows[part], dynamic, cached.classes[part], image, blobs)
+    if motion is not None:
+        cached.blobs = fresh
 
 
 def _recording(stream: Iterator[FrameDetections], sink: list[FrameDetections]) -> Iterator[FrameDetections]:
@@ -91,22 +113,15 @@ def run_source(
     cached = cache.load(source.name, key) if cache is not None else None
     recorded: list[FrameDetections] = []
     timer = StageTimer()
-    if cached is not None and cached.blobs is None:  # new motion settings: the motion stage alone again
+    rerun_motion = cached is not None and cached.blobs is None  # made with other motion settings
+    if rerun_motion:  # the motion stage alone, in step with the tracker
         motion_stream = make_motion_stream()
         timer = motion_stream.timer
-        passed = tqdm(
-            motion_stream.run(source), total=source.num_frames, desc=f"{source.name} motion", unit="frame",
-            disable=not progress, leave=False,
-        )  # fmt: skip
-        cached.blobs = [item.blobs for item in passed]
-        if len(cached.blobs) != cached.num_frames:
-            raise ValueError(
-                f"{source.description}: {len(cached.blobs)} frames now, the cached detections have "
-                f"{cached.num_frames}"
-            )
-        cache.save_blobs(source.name, key, cached.blobs)
-    if cached is not None:
-        stream: Iterator[FrameDetections] = cached_frames(cached, dynamic_filter, source if video else None)
+        stream: Iterator[FrameDetections] = cached_frames(
+            cached, dynamic_filter, motion=motion_stream.run(source, keep_images=video)
+        )
+    elif cached is not None:
+        stream = cached_frames(cached, dynamic_filter, source if video else None)
     else:
         detection_stream = make_stream()
         timer = detection_stream.timer
@@ -149,6 +164,8 @@ def run_source(
             raise ValueError(f"{source.description}: no frames")
         rows_out = np.concatenate(results)
         write_mot_results(mot_path, rows_out)
+    if rerun_motion and cache is not None:
+        cache.save_blobs(source.name, key, cached.blobs)
     if cached is None and cache is not None:
         det_rows = np.concatenate([r.rows for r in recorded])
         classes = np.concatenate([r.classes for r in recorded]).astype(np.int64)
