@@ -11,7 +11,7 @@ Per sequence, two parts, each valid only with its sidecar, which is written last
   `frame, cx, cy, x, y, w, h, area` (the moving blobs each frame's detections are matched with; frames
   1-based) and `<name>.blobs-<motion hash>.json` naming the motion settings and the source.
 The dynamic flags are not stored: they come from the boxes and the blobs with the configured thresholds
-(`conf/dynamic/`), so a new threshold re-tracks from the cache, and new motion settings re-run the motion
+(`conf/motion/dynamic.yaml`), so a new threshold re-tracks from the cache, and new motion settings re-run the motion
 stage only, never a network. Every file is written atomically.
 """
 
@@ -174,6 +174,10 @@ class DetectionCache:
                 if table.ndim != 2 or table.shape[1] != 8 or len(table) != meta.get("num_blobs"):
                     problems = [
                         f"blob table of shape {table.shape}, sidecar says {meta.get('num_blobs')} rows"
+                    ]
+                elif len(table) and not (table[:, 0].min() >= 1 and table[:, 0].max() <= num_frames):
+                    problems = [
+                        f"blob frames {table[:, 0].min():g}-{table[:, 0].max():g} outside 1-{num_frames}"
                     ]
         if problems:
             self._stale(paths["blobs_meta"], problems)
