@@ -77,15 +77,16 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False) -> Iterator[Path]:
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-def load_torch_file(path: str | Path, what: str) -> object:
+def load_torch_file(path: str | Path, what: str, *, mmap: bool = False) -> object:
     """The object saved by `torch.save` at `path` (tensors only, on the CPU), with a clear error naming the
-    file when it is missing or unreadable; `what` says what the file should be ("checkpoint", ...)."""
+    file when it is missing or unreadable; `what` says what the file should be ("checkpoint", ...).
+    `mmap`: map the file instead of reading it, so only the entries touched are read."""
     import torch  # only the model code needs torch; keep this module light for the data tools
 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what} {path} not found")
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
     except Exception as err:
         raise ValueError(f"{path} is not a readable {what}: {err}") from err

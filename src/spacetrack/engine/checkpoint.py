@@ -37,13 +37,7 @@ def peek_checkpoint(path: str | Path) -> dict[str, Any]:
     """A checkpoint's entries without reading its tensors (memory-mapped: only what is touched is read),
     for looking at its settings, epoch or run id; the same errors as `load_checkpoint` for a missing or
     unreadable file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} not found")
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except Exception as err:
-        raise ValueError(f"{path} is not a readable checkpoint: {err}") from err
+    return load_torch_file(path, "checkpoint", mmap=True)
 
 
 def load_checkpoint(path: str | Path, *, arch: dict[str, Any] | None = None) -> dict[str, Any]:
