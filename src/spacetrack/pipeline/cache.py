@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -138,53 +139,66 @@ class DetectionCache:
         rebuilt likewise.
         """
         paths = self.paths(name, key)
-        if not paths["meta"].is_file():
+
+        def check(meta: dict, arrays: list[np.ndarray]) -> str | None:
+            rows, classes = arrays
+            if len(rows) == len(classes) == meta.get("num_detections"):
+                return None
+            return (
+                f"{len(rows)} detections, {len(classes)} classes, sidecar says {meta.get('num_detections')}"
+            )
+
+        part = self._read_part(paths["meta"], key.networks(), [paths["rows"], paths["classes"]], check)
+        if part is None:
             return None
-        meta = _read_meta(paths["meta"])
-        problems = _differences(key.networks(), meta)
-        if not problems:
-            try:
-                rows, classes = np.load(paths["rows"]), np.load(paths["classes"])
-            except (OSError, ValueError) as err:
-                problems = [f"unreadable arrays ({err})"]
-            else:
-                if not len(rows) == len(classes) == meta.get("num_detections"):
-                    problems = [
-                        f"{len(rows)} detections, {len(classes)} classes, sidecar says "
-                        f"{meta.get('num_detections')}"
-                    ]
-        if problems:
-            self._stale(paths["meta"], problems)
-            return None
+        meta, (rows, classes) = part
         cached = CachedSequence(rows, classes, int(meta["num_frames"]))
         cached.blobs = self._load_blobs(paths, key, cached.num_frames)
         return cached
 
     def _load_blobs(self, paths: dict[str, Path], key: CacheKey, num_frames: int) -> list | None:
-        if not paths["blobs_meta"].is_file():
+        def check(meta: dict, arrays: list[np.ndarray]) -> str | None:
+            (table,) = arrays
+            if table.ndim != 2 or table.shape[1] != 8 or len(table) != meta.get("num_blobs"):
+                return f"blob table of shape {table.shape}, sidecar says {meta.get('num_blobs')} rows"
+            if len(table) and not (table[:, 0].min() >= 1 and table[:, 0].max() <= num_frames):
+                return f"blob frames {table[:, 0].min():g}-{table[:, 0].max():g} outside 1-{num_frames}"
             return None
-        meta = _read_meta(paths["blobs_meta"])
-        problems = _differences(key.blobs(), meta)
-        if not problems:
-            try:
-                table = np.load(paths["blobs"])
-            except (OSError, ValueError) as err:
-                problems = [f"unreadable blobs ({err})"]
-            else:
-                if table.ndim != 2 or table.shape[1] != 8 or len(table) != meta.get("num_blobs"):
-                    problems = [
-                        f"blob table of shape {table.shape}, sidecar says {meta.get('num_blobs')} rows"
-                    ]
-                elif len(table) and not (table[:, 0].min() >= 1 and table[:, 0].max() <= num_frames):
-                    problems = [
-                        f"blob frames {table[:, 0].min():g}-{table[:, 0].max():g} outside 1-{num_frames}"
-                    ]
-        if problems:
-            self._stale(paths["blobs_meta"], problems)
+
+        part = self._read_part(paths["blobs_meta"], key.blobs(), [paths["blobs"]], check)
+        if part is None:
             return None
+        meta, (table,) = part
         if not meta.get("motion_stage", True):
             return [None] * num_frames
         return blobs_by_frame(table, num_frames)
+
+    def _read_part(
+        self,
+        meta_path: Path,
+        expected: dict[str, str],
+        array_paths: list[Path],
+        check: Callable[[dict, list[np.ndarray]], str | None],
+    ) -> tuple[dict, list[np.ndarray]] | None:
+        """(sidecar, arrays) of one part when its sidecar exists, names `expected` and `check` finds
+        nothing wrong with the arrays (it returns the problem); else None, or a CacheMismatchError when
+        not `rebuild`."""
+        if not meta_path.is_file():
+            return None
+        meta = _read_meta(meta_path)
+        problems = _differences(expected, meta)
+        if not problems:
+            try:
+                arrays = [np.load(path) for path in array_paths]
+            except (OSError, ValueError) as err:
+                problems = [f"unreadable arrays ({err})"]
+            else:
+                problem = check(meta, arrays)
+                problems = [problem] if problem else []
+        if problems:
+            self._stale(meta_path, problems)
+            return None
+        return meta, arrays
 
     def _stale(self, meta_path: Path, problems: list[str]) -> None:
         if not self.rebuild:
