@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from spacetrack.tracking.camera_motion import CameraMotion
 from spacetrack.tracking.detection import Detections
+from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.io import iter_frames
 from spacetrack.tracking.kalman_filter import CHI2_95_4DOF
 from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
@@ -25,6 +27,12 @@ class DeepSort:
     min_confidence: detections below this confidence are dropped before tracking.
     nms_max_overlap: NMS overlap limit (intersection over the other box's area); 1 disables it.
     min_detection_height: detections lower than this (pixels) are dropped.
+    camera_motion: beyond the reference, move each prediction by the scene's shift measured on the frame
+        passed to `step` (`tracking.camera_motion`): false (never), true, or auto (once the camera is
+        found moving; a still camera gives exactly the tracks of false).
+    dynamics: beyond the reference, decide per track what moves (`tracking.dynamic`) from the per-box
+        blob flags passed to `step` and the track's own motion against the scene, and output only the
+        tracks that move; None outputs every confirmed track.
     """
 
     def __init__(
@@ -40,6 +48,8 @@ class DeepSort:
         lambda_: float = 0.0,
         gating_threshold: float = CHI2_95_4DOF,
         min_detection_height: float = 0.0,
+        camera_motion: bool | str = False,
+        dynamics: TrackDynamics | None = None,
     ) -> None:
         metric = None
         if max_cosine_distance is not None:
@@ -53,14 +63,31 @@ class DeepSort:
             n_init=n_init,
             lambda_=lambda_,
             gating_threshold=gating_threshold,
+            dynamics=dynamics,
         )
+        self.camera = CameraMotion(camera_motion)
         self.min_confidence = min_confidence
         self.nms_max_overlap = nms_max_overlap
         self.min_detection_height = min_detection_height
 
-    def step(self, tlwh: np.ndarray, confidence: np.ndarray, feature: np.ndarray | None = None) -> np.ndarray:
+    @property
+    def needs_images(self) -> bool:
+        """Whether `step` uses the frame (to measure the camera's motion)."""
+        return self.camera.mode is not False
+
+    def step(
+        self,
+        tlwh: np.ndarray,
+        confidence: np.ndarray,
+        feature: np.ndarray | None = None,
+        *,
+        dynamic: np.ndarray | None = None,
+        image: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Track one frame of detections (boxes `tlwh` (N, 4) pixels, confidences (N,), features (N, D)).
 
+        dynamic: (N,) bool, whether a motion blob matched each box (the evidence of `dynamics`; None: all).
+        image: the frame (RGB or grey uint8), for `camera_motion`; None applies no shift.
         Returns the frame's output tracks as rows (track id, x, y, w, h), box `tlwh` of the track state.
         """
         keep = filter_detections(
@@ -74,12 +101,26 @@ class DeepSort:
         confidence = np.asarray(confidence, dtype=float).reshape(-1)[keep]
         if feature is not None:
             feature = np.asarray(feature, dtype=float)[keep]
-        self.tracker.predict()
-        self.tracker.update(Detections.create(tlwh, confidence, feature))
-        out = self.tracker.outputs()
-        if not out:
-            return np.zeros((0, 5))
-        return np.array([[track_id, *box] for track_id, box in out])
+        if dynamic is not None:
+            dynamic = np.asarray(dynamic, dtype=bool).reshape(-1)[keep]
+        shift = self.camera.update(image)
+        self.tracker.predict((float(shift[0]), float(shift[1])))
+        offset = self.camera.offset
+        self.tracker.update(
+            Detections.create(tlwh, confidence, feature, dynamic), (float(offset[0]), float(offset[1]))
+        )
+        return track_rows(self.tracker.outputs())
+
+    def static_tracks(self) -> np.ndarray:
+        """Rows (track id, x, y, w, h) of the confirmed tracks held static this frame (kept, not output)."""
+        return track_rows(self.tracker.static_outputs())
+
+
+def track_rows(tracks: list[tuple[int, np.ndarray]]) -> np.ndarray:
+    """(T, 5) rows (track id, x, y, w, h) of (id, box `tlwh`) pairs."""
+    if not tracks:
+        return np.zeros((0, 5))
+    return np.array([[track_id, *box] for track_id, box in tracks])
 
 
 def track_sequence(tracker: DeepSort, dets: np.ndarray) -> np.ndarray:

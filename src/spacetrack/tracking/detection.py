@@ -28,16 +28,23 @@ class Detections:
     """N detections of one frame.
 
     tlwh: (N, 4) boxes in pixels; confidence: (N,); feature: (N, D) appearance vectors (None: D = 0),
-    L2-normalised here so that the cosine distance is 1 - dot product (D may be 0 when no appearance is used).
+    L2-normalised here so that the cosine distance is 1 - dot product (D may be 0 when no appearance is used);
+    dynamic: (N,) bool, whether a motion blob of the frame matched the box (None: all True), the evidence
+    of the track-level dynamic decision (`tracking.dynamic`).
     """
 
     tlwh: np.ndarray
     confidence: np.ndarray
     feature: np.ndarray
+    dynamic: np.ndarray
 
     @classmethod
     def create(
-        cls, tlwh: np.ndarray, confidence: np.ndarray, feature: np.ndarray | None = None
+        cls,
+        tlwh: np.ndarray,
+        confidence: np.ndarray,
+        feature: np.ndarray | None = None,
+        dynamic: np.ndarray | None = None,
     ) -> Detections:
         tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
         confidence = np.asarray(confidence, dtype=float).reshape(-1)
@@ -47,7 +54,8 @@ class Detections:
         if feature.shape[1]:
             norm = np.linalg.norm(feature, axis=1, keepdims=True)
             feature = feature / np.where(norm > 0, norm, 1.0)
-        return cls(tlwh, confidence, feature)
+        dynamic = np.ones(len(tlwh), bool) if dynamic is None else np.asarray(dynamic, dtype=bool).reshape(-1)
+        return cls(tlwh, confidence, feature, dynamic)
 
     def __len__(self) -> int:
         return len(self.tlwh)
@@ -55,7 +63,7 @@ class Detections:
     def subset(self, index: np.ndarray) -> Detections:
         """The detections at positions `index`, in that order."""
         index = np.asarray(index, dtype=int)
-        return Detections(self.tlwh[index], self.confidence[index], self.feature[index])
+        return Detections(self.tlwh[index], self.confidence[index], self.feature[index], self.dynamic[index])
 
     def to_xyah(self) -> np.ndarray:
         return tlwh_to_xyah(self.tlwh)

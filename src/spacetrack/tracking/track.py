@@ -6,6 +6,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from spacetrack.tracking.dynamic import MotionEvidence
+
 
 class TrackState(IntEnum):
     """Tentative until `n_init` hits, then confirmed; deleted on a tentative miss or after `max_age`."""
@@ -19,7 +21,8 @@ class Track:
     """A target hypothesis with state mean (8,) and covariance (8, 8) in `xyah` + velocities.
 
     `features` holds the appearance features gathered since they were last handed to the metric
-    (tentative tracks keep theirs until they are confirmed).
+    (tentative tracks keep theirs until they are confirmed); `evidence` its motion evidence when the
+    tracker decides per track what moves (`tracking.dynamic`), else None.
     """
 
     def __init__(
@@ -40,6 +43,7 @@ class Track:
         self.time_since_update = 0
         self.state = TrackState.TENTATIVE
         self.features: list[np.ndarray] = [] if feature is None else [feature]
+        self.evidence: MotionEvidence | None = None
         self._n_init = n_init
         self._max_age = max_age
 

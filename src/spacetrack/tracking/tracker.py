@@ -1,10 +1,17 @@
-"""The multi-target tracker: predict, associate (cascade on eq. 15, then IoU), update, manage tracks."""
+"""The multi-target tracker: predict, associate (cascade on eq. 15, then IoU), update, manage tracks.
+
+Beyond the reference: `predict` can move every prediction by the camera's scene shift of the frame
+(camera-motion compensation as BoT-SORT does it, here a translation), and with `dynamics` the tracker
+decides per track what moves and outputs only the dynamic tracks (`tracking.dynamic`). With neither, it is
+the reference DeepSORT.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
 from spacetrack.tracking.detection import Detections, xyah_to_tlwh
+from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.iou_matching import iou_matrix
 from spacetrack.tracking.kalman_filter import CHI2_95_4DOF, KalmanFilter
 from spacetrack.tracking.linear_assignment import INFTY_COST, matching_cascade, min_cost_matching
@@ -22,6 +29,8 @@ class Tracker:
     lambda_: weight of the Mahalanobis distance in eq. (15); 0 is the original DeepSORT, where motion
         only gates and appearance alone ranks.
     gating_threshold: Mahalanobis gate t(1) of eq. (12) (0.95 chi-square quantile, 4 dof).
+    dynamics: decide per track whether it moves and output only the tracks that do; None outputs every
+        confirmed track (the reference).
     """
 
     def __init__(
@@ -33,6 +42,7 @@ class Tracker:
         n_init: int = 3,
         lambda_: float = 0.0,
         gating_threshold: float = CHI2_95_4DOF,
+        dynamics: TrackDynamics | None = None,
     ) -> None:
         if not 0.0 <= lambda_ <= 1.0:
             raise ValueError(f"lambda_ must lie in [0, 1], got {lambda_}")
@@ -42,20 +52,31 @@ class Tracker:
         self.n_init = n_init
         self.lambda_ = lambda_
         self.gating_threshold = gating_threshold
+        self.dynamics = dynamics
         self.kf = KalmanFilter()
         self.tracks: list[Track] = []
         self._next_id = 1
 
-    def predict(self) -> None:
-        """Move every track one frame ahead (call once per frame, before `update`)."""
+    def predict(self, shift: tuple[float, float] = (0.0, 0.0)) -> None:
+        """Move every track one frame ahead (call once per frame, before `update`).
+
+        shift: how far (x, y pixels) the scene moved in the image since the previous frame; each predicted
+        box centre moves with it, so the velocities learn the motion against the scene.
+        """
         if not self.tracks:
             return
         means, covs = self.kf.predict(*self._states(self.tracks))
+        if shift[0] or shift[1]:
+            means[:, :2] += shift
         for track, mean, cov in zip(self.tracks, means, covs, strict=True):
             track.predicted(mean, cov)
 
-    def update(self, detections: Detections) -> None:
-        """Associate this frame's `detections`, update matched tracks, age the others, start new ones."""
+    def update(self, detections: Detections, offset: tuple[float, float] = (0.0, 0.0)) -> None:
+        """Associate this frame's `detections`, update matched tracks, age the others, start new ones.
+
+        offset: the scene's displacement (x, y pixels) in this frame since the first one, for the motion
+        evidence of `dynamics`.
+        """
         matches, unmatched_tracks, unmatched_detections = self._match(detections)
         if matches:
             t_idx, d_idx = map(list, zip(*matches, strict=True))
@@ -64,10 +85,12 @@ class Tracker:
             use_features = self.metric is not None
             for track, mean, cov, d in zip(tracks, means, covs, d_idx, strict=True):
                 track.hit(mean, cov, detections.feature[d] if use_features else None)
+                self._observe(track, detections, d, offset)
         for i in unmatched_tracks:
             self.tracks[i].mark_missed()
         for d in unmatched_detections:
             self._initiate_track(detections, d)
+            self._observe(self.tracks[-1], detections, d, offset)
         self.tracks = [t for t in self.tracks if not t.is_deleted()]
         if self.metric is not None:
             self._fit_metric()
@@ -75,10 +98,31 @@ class Tracker:
     def outputs(self) -> list[tuple[int, np.ndarray]]:
         """(track id, box `tlwh`) of the confirmed tracks matched this frame or the one before.
 
-        The box is the filtered state, not the detection (the reference DeepSORT's output rule).
+        The box is the filtered state, not the detection (the reference DeepSORT's output rule). With
+        `dynamics`, only the tracks it found dynamic.
         """
-        shown = [t for t in self.tracks if t.is_confirmed() and t.time_since_update <= 1]
+        return self._listed(dynamic=True)
+
+    def static_outputs(self) -> list[tuple[int, np.ndarray]]:
+        """Like `outputs`, the confirmed tracks that `dynamics` holds static (none without it)."""
+        return self._listed(dynamic=False) if self.dynamics is not None else []
+
+    def _listed(self, *, dynamic: bool) -> list[tuple[int, np.ndarray]]:
+        shown = [
+            t
+            for t in self.tracks
+            if t.is_confirmed()
+            and t.time_since_update <= 1
+            and (t.evidence is None or t.evidence.dynamic == dynamic)
+        ]
         return list(zip([t.track_id for t in shown], self._boxes(shown), strict=True))
+
+    def _observe(self, track: Track, detections: Detections, d: int, offset: tuple[float, float]) -> None:
+        if self.dynamics is None:
+            return
+        if track.evidence is None:
+            track.evidence = self.dynamics.new_evidence()
+        self.dynamics.observe(track.evidence, detections.tlwh[d], offset, detections.dynamic[d])
 
     @staticmethod
     def _boxes(tracks: list[Track]) -> np.ndarray:

@@ -1,0 +1,134 @@
+"""The track-level dynamic decision and the camera motion in the tracker, on hand-made sequences."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from spacetrack.tracking import DeepSort
+from spacetrack.tracking.dynamic import TrackDynamics
+
+SORT = dict(
+    max_cosine_distance=None, nn_budget=None, max_iou_distance=0.7, max_age=30, n_init=3, min_confidence=0.3,
+    nms_max_overlap=1.0,
+)  # fmt: skip
+H, W = 256, 256
+
+
+def starfield(seed=0):
+    """A (H + 200, W + 200) uint8 field of bright points: texture for the phase correlation."""
+    rng = np.random.default_rng(seed)
+    field = np.zeros((H + 200, W + 200), np.uint8)
+    ys, xs = rng.integers(0, field.shape[0], 400), rng.integers(0, field.shape[1], 400)
+    field[ys, xs] = 255
+    field[np.clip(ys + 1, 0, None) % field.shape[0], xs] = 180
+    return field
+
+
+def view(field, offset):
+    """The camera's (H, W) window on `field` when the scene has moved by `offset` (x, y whole pixels)."""
+    x, y = 150 - offset[0], 100 - offset[1]
+    return np.ascontiguousarray(field[y : y + H, x : x + W])
+
+
+def run(frames, dynamics=None, camera_motion=False, **overrides):
+    """frames: per-frame (boxes (N, 4) tlwh, blob flags (N,) or None, image or None). Returns [{id: tlwh}]."""
+    tracker = DeepSort(**{**SORT, **overrides}, camera_motion=camera_motion, dynamics=dynamics)
+    outputs = []
+    for boxes, flags, image in frames:
+        boxes = np.asarray(boxes, float).reshape(-1, 4)
+        rows = tracker.step(boxes, np.full(len(boxes), 0.9), dynamic=flags, image=image)
+        outputs.append({int(r[0]): r[1:] for r in rows})
+    return outputs
+
+
+def test_a_parked_object_under_a_slewing_camera_stays_static_and_is_one_track():
+    # The camera slews 3 px/frame: the parked object drifts across the image with the stars. Its masks
+    # flicker on it in two frames of 40; a real mover at 2 px/frame against the scene crosses the field.
+    field, frames = starfield(), []
+    for f in range(40):
+        offset = (3 * f, 0)
+        parked = (40 + offset[0], 60, 16, 16)
+        mover = (40 + offset[0] + 2 * f, 150, 16, 16)
+        flags = np.array([f in (5, 6), False])  # no mask on the mover either: its trajectory must tell
+        frames.append(([parked, mover], flags, view(field, offset)))
+    dynamics = TrackDynamics()
+    out = run(frames, dynamics=dynamics, camera_motion=True)
+    shown = set().union(*out)
+    assert len(shown) == 1  # only the mover is ever output
+    (mover_id,) = shown
+    assert all(abs(box[1] - 150) < 3 for o in out for box in o.values())
+    assert out[-1].keys() == {mover_id}
+    # without the camera's shift the parked object seems to move 3 px/frame and becomes a track
+    fooled = run(frames, dynamics=TrackDynamics(), camera_motion=False)
+    assert len(set().union(*fooled)) == 2
+
+
+def test_a_dim_mover_without_masks_becomes_dynamic_by_its_trajectory():
+    frames = [([(50 + 1.0 * f, 80, 12, 12)], np.array([False]), None) for f in range(30)]
+    out = run(frames, dynamics=TrackDynamics(min_displacement=6.0, min_displacement_height=0.0, window=5))
+    first = min(f for f, o in enumerate(out) if o)
+    # median of the last 5 centres lags 2 frames: 6 px against the first centre at frame 8
+    assert first == 8
+    assert all(o.keys() == {1} for o in out[first:])
+
+
+def test_a_target_that_stops_keeps_its_track():
+    # moves 3 px/frame with masks for 15 frames, then stands still without any mask for 30 frames
+    xs = [50 + 3 * min(f, 15) for f in range(45)]
+    frames = [([(x, 80, 12, 12)], np.array([f < 15]), None) for f, x in enumerate(xs)]
+    out = run(frames, dynamics=TrackDynamics())
+    assert out[2].keys() == {1}  # dynamic by its masks from its second hit, shown from n_init on
+    assert all(o.keys() == {1} for o in out[2:])  # stopped frames 15-44 included
+
+
+def test_a_parked_object_with_masks_only_flickering_is_never_output():
+    flags = np.zeros(60, bool)
+    flags[[3, 20, 40]] = True  # single-frame flickers: never 2 of the last 5 hits
+    frames = [([(100, 100, 20, 20)], flags[f : f + 1], None) for f in range(60)]
+    assert not any(run(frames, dynamics=TrackDynamics()))
+
+
+def test_a_still_camera_gives_exactly_the_tracks_of_no_compensation():
+    rng = np.random.default_rng(1)
+    field, frames = starfield(1), []
+    for f in range(40):
+        boxes = [
+            (30 + 2 * f + rng.normal(0, 0.5), 40, 15, 15),
+            (200 - 2 * f, 42 + rng.normal(0, 0.5), 15, 15),
+        ]
+        frames.append((boxes, None, view(field, (0, 0))))
+    plain = run(frames, camera_motion=False)
+    for mode in (True, "auto"):
+        compensated = run(frames, camera_motion=mode)
+        assert [o.keys() for o in compensated] == [o.keys() for o in plain]
+        for a, b in zip(compensated, plain, strict=True):
+            for k in a:
+                np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_a_frame_without_texture_gets_no_shift_and_is_logged_once(caplog):
+    field = starfield()
+    black = np.zeros((H, W), np.uint8)
+    images = [view(field, (0, 0)), black, black, view(field, (0, 0)), black]
+    frames = [([(60, 60, 15, 15)], None, image) for image in images]
+    with caplog.at_level(logging.WARNING, logger="spacetrack.tracking.camera_motion"):
+        out = run(frames, camera_motion=True, n_init=1)
+    warnings = [r for r in caplog.records if "no texture" in r.message]
+    assert len(warnings) == 1 and "frame 2" in warnings[0].message
+    assert all(np.allclose(o[1], (60, 60, 15, 15), atol=1e-6) for o in out[1:])  # no shift applied
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("window", 0), ("window", -3), ("min_blob_ratio", 1.5), ("min_blob_ratio", -0.1), ("min_blob_hits", 0),
+     ("min_displacement", 0.0), ("min_displacement_height", -1.0)],
+)  # fmt: skip
+def test_out_of_range_settings_are_an_error_naming_the_key(key, value):
+    with pytest.raises(ValueError, match=rf"dynamic_track\.{key} must be .*got {value}"):
+        TrackDynamics(**{key: value})
+
+
+def test_an_unknown_camera_motion_mode_is_an_error():
+    with pytest.raises(ValueError, match="tracker.camera_motion must be false, true or auto, got 'on'"):
+        DeepSort(**SORT, camera_motion="on")
