@@ -37,6 +37,7 @@ from omegaconf import DictConfig, OmegaConf
 from spacetrack.config import REPO_ROOT, compose_config, resolved_dict
 from spacetrack.io import atomic_write_text
 from spacetrack.pipeline.cache import config_hash
+from spacetrack.pipeline.runner import filter_mode
 from spacetrack.pipeline.weights import MissingWeightsError
 
 HERE = Path(__file__).resolve().parent
@@ -44,9 +45,15 @@ RESULTS = HERE / "results"
 GT = ["detector=ground_truth"]
 YOLO = ["detector=yolo", "detector_run.model=none", "enhance=none"]
 GAM = ["detector=yolo", "detector_run.model=after_sppf", "enhance=dwt_hsv"]
-NOFILTER = ["dynamic_filter=false"]
-PAPER_FILTER = ["dynamic_hold.frames=0"]  # the paper's per-frame filter, without the hold of conf/track.yaml
-HOLD = ["dynamic_hold.frames=30"]
+# The paper's pipeline: the per-frame filter, no camera motion in the tracker.
+PAPER = ["tracker.camera_motion=false"]
+NOFILTER = ["dynamic_filter=false"] + PAPER
+PAPER_FILTER = ["dynamic_filter=frame", "dynamic_hold.frames=0"] + PAPER  # the paper's per-frame filter
+HOLD = ["dynamic_filter=frame", "dynamic_hold.frames=30"] + PAPER
+TRACK = ["dynamic_filter=track", "tracker.camera_motion=auto"]  # beyond the paper: conf/track.yaml's default
+# No fold's own re-ID network is in this checkout's MLflow store: the ground-truth DeepSORT rows use the
+# shipped one (trained with fold 3 held out; on the other folds it has seen the identities).
+SHIPPED_REID = ["reid.weights=weights/reid_fold3.pt"]
 # row name -> (what the paper's Table 4 calls it, overrides of conf/track.yaml)
 ROWS: dict[str, tuple[str, list[str]]] = {
     "yolo_deepsort_original": ("original DeepSORT settings, plain YOLOv5s", YOLO + ["tracker=deepsort_original"] + PAPER_FILTER),
@@ -56,17 +63,20 @@ ROWS: dict[str, tuple[str, list[str]]] = {
     "gam_deepsort_paper_hold": ("the paper's method, filter with a 30-frame hold (beyond the paper)", GAM + ["tracker=deepsort_paper"] + HOLD),
     "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER),
     "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
-    "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings", GT + ["tracker=deepsort_original"] + PAPER_FILTER),
-    "gt_deepsort_paper": ("ground-truth boxes, paper settings", GT + ["tracker=deepsort_paper"] + PAPER_FILTER),
-    "gt_deepsort_paper_nofilter": ("ground-truth boxes, paper settings, no filter", GT + ["tracker=deepsort_paper"] + NOFILTER),
+    "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings, track-level decision (online)", GT + ["tracker=deepsort_original"] + TRACK + SHIPPED_REID),
+    "gt_deepsort_paper": ("ground-truth boxes, paper settings, track-level decision (online)", GT + ["tracker=deepsort_paper"] + TRACK + SHIPPED_REID),
+    "gt_deepsort_original_frame": ("ground-truth boxes, original DeepSORT settings, the paper's per-frame filter", GT + ["tracker=deepsort_original"] + PAPER_FILTER + SHIPPED_REID),
+    "gt_deepsort_paper_frame": ("ground-truth boxes, paper settings, the paper's per-frame filter", GT + ["tracker=deepsort_paper"] + PAPER_FILTER + SHIPPED_REID),
+    "gt_deepsort_paper_nofilter": ("ground-truth boxes, paper settings, no filter", GT + ["tracker=deepsort_paper"] + NOFILTER + SHIPPED_REID),
     "gt_sort": ("ground-truth boxes, SORT", GT + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
     "gt_sort_hold": ("ground-truth boxes, SORT, filter with a 30-frame hold (beyond the paper)", GT + ["tracker=sort", "reid.weights=none"] + HOLD),
     "gt_sort_nofilter": ("ground-truth boxes, SORT, no dynamic-target filter", GT + ["tracker=sort", "reid.weights=none"] + NOFILTER),
+    "gt_sort_track": ("ground-truth boxes, SORT, track-level decision (online)", GT + ["tracker=sort", "reid.weights=none"] + TRACK),
 }  # fmt: skip
 SHOWN = ("mota", "idf1", "motp", "idsw", "fp", "fn")
 # The parts of conf/track.yaml that change a piece's numbers, and keys within them that change only speed.
 RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic", "dynamic_hold",
-               "dynamic_filter", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
+               "dynamic_filter", "dynamic_track", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
 SPEED_ONLY = frozenset({"device", "threads", "onnx_dir", "parallel", "batch_size"})
 
 
@@ -107,10 +117,21 @@ def settings_hash(overrides: list[str]) -> str:
         value = OmegaConf.select(cfg, key)
         return strip(resolved_dict(value)) if isinstance(value, DictConfig) else value
 
-    settings = {key: section(key) for key in RESULT_KEYS}
-    if not (settings["dynamic_filter"] and settings["dynamic_hold"]["frames"]):
-        del settings["dynamic_hold"]  # no hold (or no filter to hold): the numbers of before the option
-    return config_hash(settings)
+    return config_hash(_without_unused({key: section(key) for key in RESULT_KEYS}))
+
+
+def _without_unused(settings: dict) -> dict:
+    """`settings` less the options that do not act in its mode, each at the value that gives the numbers
+    of before the option existed, so the pieces made then keep their hash."""
+    mode = filter_mode(settings["dynamic_filter"])
+    settings["dynamic_filter"] = {"frame": True, "off": False}.get(mode, mode)
+    if not (mode == "frame" and settings["dynamic_hold"]["frames"]):
+        del settings["dynamic_hold"]  # no hold (or no filter to hold)
+    if mode != "track":
+        del settings["dynamic_track"]
+    if settings["tracker"].get("camera_motion") is False:
+        del settings["tracker"]["camera_motion"]
+    return settings
 
 
 def run_piece(row: str, fold: int, common: list[str]) -> dict:

@@ -23,7 +23,7 @@ from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.dynamic import DynamicHold
 from spacetrack.pipeline.build import build_motion_stream, build_stream, cache_key, resolve_weights
 from spacetrack.pipeline.cache import DetectionCache
-from spacetrack.pipeline.runner import SequenceResult, run_source
+from spacetrack.pipeline.runner import SequenceResult, build_tracker, filter_mode, run_source
 from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.track_detections import rows_as_mot
@@ -96,6 +96,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
         built[0].timer = StageTimer()
         return built[0]
 
+    mode = filter_mode(cfg.dynamic_filter)
     run_name = f"fold{cfg.fold}" if cfg.fold is not None and cfg.sequence is None else None
     results: list[SequenceResult] = []
     pairs = {}
@@ -105,14 +106,14 @@ def run(cfg: DictConfig) -> dict[str, float]:
             source = limit(source, cfg.max_frames)
             result = run_source(
                 source,
-                tracker=hydra.utils.instantiate(cfg.tracker),
+                tracker=build_tracker(cfg),
                 make_stream=make_stream,
                 make_motion_stream=lambda: build_motion_stream(cfg),
                 dynamic_filter=hydra.utils.instantiate(cfg.dynamic),
                 cache=cache,
                 key=cache_key(cfg, weights, source),
-                use_filter=cfg.dynamic_filter,
-                hold=DynamicHold(**cfg.dynamic_hold) if cfg.dynamic_filter else None,
+                mode=mode,
+                hold=DynamicHold(**cfg.dynamic_hold) if mode == "frame" else None,
                 out_dir=out_dir,
                 video=cfg.video,
                 progress=cfg.progress,

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig
 from tqdm import tqdm
 
 from spacetrack.motion.blobs import Blob
@@ -79,10 +81,43 @@ def cached_frames(
         cached.blobs = fresh
 
 
+def _reaching_tracker(item: FrameDetections, mode: str, hold: DynamicHold | None) -> np.ndarray:
+    """(N,) bool: the frame's detections that the tracker sees in filter `mode`."""
+    if mode != "frame":
+        return np.ones(len(item.rows), bool)
+    return hold.keep(item.rows[:, 2:6], item.dynamic) if hold is not None else item.dynamic
+
+
+def _static_boxes(item: FrameDetections, keep: np.ndarray, mode: str, tracker: DeepSort) -> np.ndarray:
+    """(K, 4) boxes drawn as static: the tracks held static ("track"), else the detections the motion stage
+    called static (a box held for a track is the track's, not static)."""
+    if mode == "track":
+        return tracker.static_tracks()[:, 1:5]
+    static_mask = ~item.dynamic & ~keep if mode == "frame" else ~item.dynamic
+    return item.rows[static_mask & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
+
+
 def _recording(stream: Iterator[FrameDetections], sink: list[FrameDetections]) -> Iterator[FrameDetections]:
     for item in stream:
         sink.append(item)
         yield item
+
+
+FILTER_MODES = {"track": "track", "frame": "frame", True: "frame", False: "off", "off": "off"}
+
+
+def filter_mode(value: object) -> str:
+    """`dynamic_filter` of conf/track.yaml as one of "track", "frame" (also true) or "off" (also false)."""
+    mode = FILTER_MODES.get(value) if isinstance(value, (bool, str)) else None
+    if mode is None:
+        raise ValueError(f"dynamic_filter must be track, frame (or true) or false, got {value!r}")
+    return mode
+
+
+def build_tracker(cfg: DictConfig) -> DeepSort:
+    """The configured tracker (`tracker`), deciding per track what moves when `dynamic_filter` is track."""
+    dynamics = instantiate(cfg.dynamic_track) if filter_mode(cfg.dynamic_filter) == "track" else None
+    return instantiate(cfg.tracker, dynamics=dynamics)
 
 
 def run_source(
@@ -94,7 +129,7 @@ def run_source(
     dynamic_filter: DynamicFilter,
     cache: DetectionCache | None,
     key: CacheKey,
-    use_filter: bool,
+    mode: str,
     out_dir: Path,
     video: bool,
     progress: bool = True,
@@ -106,26 +141,29 @@ def run_source(
     make_motion_stream: builds a stream of the motion stage alone, for cached detections whose blobs were
         made by other motion settings.
     dynamic_filter: flags cached detections dynamic from their blobs (the stream has its own).
-    use_filter: only detections that the motion stage marks dynamic reach the tracker ...
-    hold: ... and, with a `DynamicHold`, those it holds for tracks the motion stage lost for a while.
+    mode (`filter_mode`): "frame", only detections that the motion stage marks dynamic reach the tracker
+        (the paper) and, with a `DynamicHold` `hold`, those it holds for tracks the motion stage lost for
+        a while; "track", every detection reaches the tracker with its flag and the tracker decides per
+        track (it was built with `dynamics`); "off", every detection is tracked and output.
     """
     started = time.perf_counter()
     cached = cache.load(source.name, key) if cache is not None else None
     recorded: list[FrameDetections] = []
     timer = StageTimer()
+    images = video or tracker.needs_images
     rerun_motion = cached is not None and cached.blobs is None  # made with other motion settings
     if rerun_motion:  # the motion stage alone, in step with the tracker
         motion_stream = make_motion_stream()
         timer = motion_stream.timer
         stream: Iterator[FrameDetections] = cached_frames(
-            cached, dynamic_filter, motion=motion_stream.run(source, keep_images=video)
+            cached, dynamic_filter, motion=motion_stream.run(source, keep_images=images)
         )
     elif cached is not None:
-        stream = cached_frames(cached, dynamic_filter, source if video else None)
+        stream = cached_frames(cached, dynamic_filter, source if images else None)
     else:
         detection_stream = make_stream()
         timer = detection_stream.timer
-        stream = _recording(detection_stream.run(source, keep_images=video), recorded)
+        stream = _recording(detection_stream.run(source, keep_images=images), recorded)
     # A live source has no length: the bar then shows the frame count and the live frame rate.
     bar = tqdm(
         stream, total=source.num_frames, desc=source.name, unit="frame", disable=not progress, leave=False
@@ -137,15 +175,16 @@ def run_source(
     with ExitStack() as stack:
         writer = None
         for item in bar:
-            if not use_filter:
-                keep = np.ones(len(item.rows), bool)
-            elif hold is not None:
-                keep = hold.keep(item.rows[:, 2:6], item.dynamic)
-            else:
-                keep = item.dynamic
+            keep = _reaching_tracker(item, mode, hold)
             dets = item.rows[keep]
             with timer("tracker"):
-                out = tracker.step(dets[:, 2:6], dets[:, 6], dets[:, 10:])
+                out = tracker.step(
+                    dets[:, 2:6],
+                    dets[:, 6],
+                    dets[:, 10:],
+                    dynamic=item.dynamic[keep] if mode == "track" else None,
+                    image=item.image,
+                )
             if hold is not None:
                 hold.update(out)
             results.append(np.column_stack([np.full(len(out), item.frame), out]))
@@ -153,9 +192,7 @@ def run_source(
                 if writer is None:
                     height, width = item.image.shape[:2]
                     writer = stack.enter_context(VideoWriter(video_path, source.fps, (width, height)))
-                # Static objects drawn apart; a box held for a track is the track's, not static.
-                static_mask = ~item.dynamic & ~keep if use_filter else ~item.dynamic
-                static = item.rows[static_mask & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
+                static = _static_boxes(item, keep, mode, tracker)
                 info = f"{source.name} frame {item.frame}  tracks {len(out)}"
                 with timer("draw"):
                     writer.write(annotator(item.image, out, static, info))
