@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
@@ -75,6 +76,12 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False) -> Iterator[Path]:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def file_hash(path: str | Path) -> str:
+    """`sha256:<first 16 hex digits>` of a file's bytes: names a weights file whatever its path."""
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return f"sha256:{digest[:16]}"
 
 
 def load_torch_file(path: str | Path, what: str, *, mmap: bool = False) -> object:

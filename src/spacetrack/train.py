@@ -14,20 +14,66 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from spacetrack.config import CONF_DIR, resolved_dict
+from spacetrack.data.crops import CropDataset
+from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
 from spacetrack.engine.checkpoint import peek_checkpoint
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
+from spacetrack.engine.pretrained import load_pretrained, resolve_weights
 from spacetrack.engine.trainer import unfinished_checkpoint
+from spacetrack.io import file_hash
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.models.yolo import count_parameters
 
-REPORTED = ("map50", "map50_95", "precision", "recall", "fitness")
+REPORTED = ("map50", "map50_95", "precision", "recall", "recall_at_score", "fitness")
+
+
+def build_datasets(
+    cfg: DictConfig, root: Path, train_names: list[str], val_names: list[str], num_classes: int, enhancer
+) -> tuple[CropDataset | YoloDataset, YoloDataset]:
+    """(training, validation) data of `cfg.train`: native-resolution crops or letterboxed whole frames
+    for training; whole frames at `val_image_size` (null: native) for validation. Frames are decoded
+    (and enhanced) once into a `FrameStore` when `cache_frames` is on."""
+    image_dir, enhance_on_the_fly = image_source(root, train_names + val_names, enhancer.name)
+    on_the_fly = enhancer if enhance_on_the_fly else None
+    store = None
+    if cfg.train.cache_frames:
+        store = FrameStore(root=root, image_dir=image_dir, enhancer=on_the_fly, enhancer_name=enhancer.name)
+    common = {"root": root, "num_classes": num_classes, "store": store}
+    frames = {**common, "image_dir": image_dir, "enhancer": on_the_fly}
+    training = {
+        "sequences": train_names,
+        "frame_stride": cfg.train.frame_stride,
+        "augment": build_augmentation(**cfg.train.augment),
+        "seed": cfg.train.trainer.seed,
+    }
+    if cfg.train.input == "crops":
+        if store is None:
+            raise ValueError("train.input=crops reads decoded frames: set train.cache_frames=true")
+        train_set = CropDataset(**common, **training, crop_size=cfg.train.image_size, **cfg.train.crops)
+    elif cfg.train.input == "frames":
+        train_set = YoloDataset(**frames, **training, image_size=cfg.train.image_size)
+    else:
+        raise ValueError(f"train.input must be crops or frames, got {cfg.train.input!r}")
+    val_set = YoloDataset(
+        **frames,
+        sequences=val_names,
+        image_size=cfg.train.val_image_size,
+        frame_stride=cfg.train.val_frame_stride,
+    )
+    return train_set, val_set
 
 
 def run(cfg: DictConfig) -> dict[str, float]:
     """Train one fold; return the best epoch's mAP@0.5, mAP@0.5:0.95, precision, recall and fitness."""
+    return fit(cfg)["metrics"]
+
+
+def fit(cfg: DictConfig) -> dict:
+    """Train one fold: `metrics` (as `run` returns them), `best` and `last` (checkpoint paths), `run_id`
+    (the MLflow run, or None)."""
     root = Path(cfg.data_root) / cfg.data.name
     manifest = load_manifest(root)
     train_names, val_names = split_sequences(manifest, cfg.fold)
@@ -35,10 +81,10 @@ def run(cfg: DictConfig) -> dict[str, float]:
     if cfg.train.threads:
         torch.set_num_threads(int(cfg.train.threads))
     enhancer = instantiate(cfg.enhance)
-    image_dir, enhance_on_the_fly = image_source(root, train_names + val_names, enhancer.name)
 
     torch.manual_seed(cfg.train.trainer.seed)
     model = instantiate(cfg.model, num_classes=len(class_names))
+    weights = resolve_weights(cfg.weights, model.arch)
     loss_fn = YoloLoss(
         anchors=model.detect.anchors,
         strides=model.stride,
@@ -46,26 +92,14 @@ def run(cfg: DictConfig) -> dict[str, float]:
         image_size=cfg.train.image_size,
         **cfg.train.loss,
     )
-    common = {
-        "root": root,
-        "num_classes": len(class_names),
-        "image_size": cfg.train.image_size,
-        "image_dir": image_dir,
-        "enhancer": enhancer if enhance_on_the_fly else None,
-    }
-    train_set = YoloDataset(
-        sequences=train_names,
-        frame_stride=cfg.train.frame_stride,
-        augment=build_augmentation(**cfg.train.augment),
-        seed=cfg.train.trainer.seed,
-        **common,
-    )
-    val_set = YoloDataset(sequences=val_names, frame_stride=cfg.train.val_frame_stride, **common)
+    train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
     # Everything besides the trainer's own keys that changes the result; a resume must not change it.
-    run_settings = resolved_dict(OmegaConf.masked_copy(cfg, ["data", "enhance", "model", "fold"])) | {
-        k: v for k, v in resolved_dict(cfg.train).items() if k not in ("trainer", "threads")
-    }
+    run_settings = (
+        resolved_dict(OmegaConf.masked_copy(cfg, ["data", "enhance", "model", "fold"]))
+        | {k: v for k, v in resolved_dict(cfg.train).items() if k not in ("trainer", "threads")}
+        | {"weights": file_hash(weights) if weights else None, "weights_partial": bool(cfg.weights_partial)}
+    )
     resume = cfg.resume
     if resume == "auto":
         settings = {**trainer.settings, **run_settings}
@@ -74,6 +108,10 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"fold {cfg.fold}: " + (f"resuming {resume}" if resume else "nothing to resume, starting afresh")
         )
     out_dir = Path(resume).resolve().parents[1] if resume else Path(cfg.out_dir)
+    if resume is None and weights is not None:
+        print(f"fold {cfg.fold}: " + load_pretrained(model, weights, partial=cfg.weights_partial), flush=True)
+    elif resume is None:
+        print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
 
     plots = out_dir / "plots"
     plots.mkdir(parents=True, exist_ok=True)
@@ -115,7 +153,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,
         )
         best = max(result["history"], key=lambda r: r["fitness"])
-        summary = {k: float(best[k]) for k in REPORTED}
+        summary = {k: float(best.get(k, float("nan"))) for k in REPORTED}  # older epochs lack some
         log_metrics_step({f"best_{k}": v for k, v in summary.items()} | {"best_epoch": best["epoch"]}, step=0)
         log_artifact_file(result["best"], "weights")
         for name in ("pr_curve.png", "val_predictions.png"):
@@ -124,7 +162,8 @@ def run(cfg: DictConfig) -> dict[str, float]:
         f"fold {cfg.fold}: best epoch {best['epoch']}: "
         + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
     )
-    return summary
+    run_id = active.info.run_id if active is not None else None
+    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id}
 
 
 @hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="train")

@@ -32,7 +32,7 @@ def config(tiny_dataset, tmp_path, *overrides):
 
 def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
     result = run(config(tiny_dataset, tmp_path, "fold=3", "model=yolov5s_gam_light"))
-    assert set(result) == {"map50", "map50_95", "precision", "recall", "fitness"}
+    assert set(result) == {"map50", "map50_95", "precision", "recall", "recall_at_score", "fitness"}
     assert (tmp_path / "run" / "weights" / "best.pt").is_file()
     assert (tmp_path / "run" / "plots" / "pr_curve.png").is_file()
     assert (tmp_path / "run" / "plots" / "val_predictions.png").is_file()
@@ -42,7 +42,7 @@ def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
         config(tiny_dataset, tmp_path / "elsewhere", "fold=3", "model=yolov5s_gam_light", f"resume={last}")
     )
     assert again == result
-    with pytest.raises(ValueError, match="image_size: checkpoint 64, configured 96"):
+    with pytest.raises(ValueError, match="crops: checkpoint .*'jitter': 0.8.*configured .*'jitter': 0.5"):
         run(
             config(
                 tiny_dataset,
@@ -50,7 +50,7 @@ def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
                 "fold=3",
                 "model=yolov5s_gam_light",
                 f"resume={last}",
-                "train.image_size=96",
+                "train.crops.jitter=0.5",
             )
         )
 
@@ -86,8 +86,8 @@ def test_resume_auto_finds_the_unfinished_run_of_the_same_settings(
     with pytest.raises(KeyboardInterrupt):
         run(config(tiny_dataset, tmp_path / "stopped", *common))
     calls.clear()
-    with pytest.raises(KeyboardInterrupt):  # a newer unfinished run, of another image size
-        run(config(tiny_dataset, tmp_path / "other", *common, "train.image_size=96"))
+    with pytest.raises(KeyboardInterrupt):  # a newer unfinished run, of other crop settings
+        run(config(tiny_dataset, tmp_path / "other", *common, "train.crops.jitter=0.5"))
     monkeypatch.setattr(trainer_module, "evaluate", real_evaluate)
     stopped = tmp_path / "stopped" / "run" / "weights" / "last.pt"
     capsys.readouterr()

@@ -65,7 +65,18 @@ def test_detector_onnxruntime_matches_torch(tiny_yolo, onnx_dir):
     assert boxes.shape[1] == 6 and 0 < len(boxes) <= 50 and (boxes[:, :2] >= 0).all()
     assert (boxes[:, 0] + boxes[:, 2] <= 130 + 1e-6).all() and (boxes[:, 1] + boxes[:, 3] <= 60 + 1e-6).all()
     assert "backend=onnxruntime" in ort_det.identity and "backend=torch" in torch_det.identity
-    assert ort_det.session.path.parent == onnx_dir and torch_det.session is None
+    assert ort_det.session(64, 64).path.parent == onnx_dir and torch_det.backend == "torch"
+
+
+def test_native_resolution_exports_one_graph_per_frame_size(tiny_yolo, onnx_dir):
+    native = YoloDetector(weights=tiny_yolo, conf_threshold=0.0, device="cpu", backend="onnxruntime",
+                          threads=1, onnx_dir=onnx_dir)  # fmt: skip
+    by_torch = YoloDetector(weights=tiny_yolo, conf_threshold=0.0, device="cpu", backend="torch")
+    rgb = np.random.default_rng(0).integers(0, 255, (60, 130, 3), dtype=np.uint8)
+    boxes = native(rgb, 1)
+    assert sorted(p.name.split("-")[0] for p in onnx_dir.glob("*.onnx")) == ["yolo64x160"]
+    assert "size=native" in native.identity
+    assert np.allclose(boxes[:5, :4], by_torch(rgb, 1)[:5, :4], atol=1e-2)
 
 
 def test_encoder_onnxruntime_matches_torch_at_any_batch(tmp_path):
@@ -168,4 +179,4 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
     assert key(auto_cpu) == by_ort
     assert check_backend("auto", "cuda") == "torch" and check_backend("auto", "cpu") == "onnxruntime"
     stream = build_stream(cfg, resolve_weights(cfg))
-    assert stream.detector.session.path.parent == stream.encoder.session.path.parent == onnx_dir
+    assert stream.detector.session(64, 64).path.parent == stream.encoder.session.path.parent == onnx_dir

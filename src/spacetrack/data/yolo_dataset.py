@@ -1,7 +1,9 @@
-"""Detector training data: frames and YOLO labels of the rendered dataset, letterboxed and augmented.
+"""Detector data: whole frames and YOLO labels of the rendered dataset, at native size or letterboxed.
 
-A sample is a square letterboxed RGB uint8 image (size x size x 3) and its labels as an (N, 5) array
-of rows `class, cx, cy, w, h` normalised to that square. Augmentation (albumentations: HSV jitter,
+A sample is an RGB uint8 image and its labels as an (N, 5) array of rows `class, cx, cy, w, h`
+normalised to that image: the frame at its own resolution padded on the right and bottom to a multiple
+of 32 (`image_size=None`, how validation and inference see frames), or letterboxed to a square
+(`image_size=S`, the whole-frame training of `train=full`). Training crops are in `data.crops`. Augmentation (albumentations: HSV jitter,
 flips, scale/translate) is seeded by (seed, epoch, index), so an epoch is the same whatever the
 number of workers and whether the run was resumed.
 """
@@ -17,6 +19,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from spacetrack.data.frame_store import FrameStore, read_rgb
 from spacetrack.data.layout import frame_paths
 
 PAD_VALUE = 114
@@ -49,14 +52,6 @@ def read_labels(path: Path, num_classes: int) -> np.ndarray:
             )
         rows.append((cls, cx, cy, w, h))
     return np.array(rows, dtype=np.float32).reshape(-1, 5)
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    """RGB uint8 (H, W, 3) image at `path`; empty or unreadable files are an error naming the file."""
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None or bgr.size == 0:
-        raise ValueError(f"{path}: cannot read image (empty, corrupt or not an image)")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def letterbox(image: np.ndarray, size: int) -> tuple[np.ndarray, float, tuple[int, int]]:
@@ -93,8 +88,10 @@ def build_augmentation(
     flipud: float,
     scale: float,
     translate: float,
+    fill: int = PAD_VALUE,
 ) -> A.Compose:
-    """HSV jitter (albumentations shift limits), flips (probabilities), scale and translate (fractions)."""
+    """HSV jitter (albumentations shift limits), flips (probabilities), scale and translate (fractions);
+    `fill` is the grey level of pixels the affine move brings in."""
     return A.Compose(
         [
             A.HueSaturationValue(
@@ -105,12 +102,22 @@ def build_augmentation(
             A.Affine(
                 scale=(1 - scale, 1 + scale),
                 translate_percent=(-translate, translate),
-                fill=PAD_VALUE,
+                fill=fill,
                 p=0.5 if scale or translate else 0.0,
             ),
         ],
         bbox_params=A.BboxParams(format="yolo", label_fields=["classes"], clip=True, min_visibility=0.3),
     )
+
+
+def pad_to_stride(image: np.ndarray, stride: int = 32, value: int = 0) -> np.ndarray:
+    """`image` padded on the right and bottom so that its height and width are multiples of `stride`
+    (returned as it is when they already are, as 640x480 frames are)."""
+    h, w = image.shape[:2]
+    ph, pw = -h % stride, -w % stride
+    if not (ph or pw):
+        return image
+    return cv2.copyMakeBorder(image, 0, ph, 0, pw, cv2.BORDER_CONSTANT, value=(value,) * 3)
 
 
 def image_source(root: Path, sequences: Sequence[str], enhancer_name: str) -> tuple[str, bool]:
@@ -123,8 +130,29 @@ def image_source(root: Path, sequences: Sequence[str], enhancer_name: str) -> tu
     return "img", True
 
 
+def frame_samples(
+    root: Path, sequences: Sequence[str], image_dir: str, frame_stride: int, num_classes: int
+) -> list[tuple[str, int, Path, np.ndarray]]:
+    """(sequence, 0-based frame index, image path, labels) of every `frame_stride`-th frame of each
+    sequence, labels as read by `read_labels`."""
+    samples = []
+    for seq in sequences:
+        for index, path in list(enumerate(frame_paths(root, seq, image_dir)))[::frame_stride]:
+            labels = read_labels(root / seq / "labels" / f"{path.stem}.txt", num_classes)
+            samples.append((seq, index, path, labels))
+    if not samples:
+        raise ValueError(f"no frames in {root} for sequences {list(sequences)}")
+    return samples
+
+
 class YoloDataset(Dataset):
-    """Frames of `sequences` under `root` (every `frame_stride`-th), letterboxed to `image_size` pixels."""
+    """Whole frames of `sequences` under `root` (every `frame_stride`-th).
+
+    image_size: None keeps each frame's own resolution (padded to a multiple of 32 on the right and
+        bottom); an integer letterboxes it to that square.
+    store: decoded frames to read from (a `FrameStore`); None decodes each sample's file (and runs
+        `enhancer` on it) when it is read.
+    """
 
     def __init__(
         self,
@@ -132,9 +160,10 @@ class YoloDataset(Dataset):
         root: str | Path,
         sequences: Sequence[str],
         num_classes: int,
-        image_size: int,
+        image_size: int | None = None,
         image_dir: str = "img",
         enhancer: Enhancer | None = None,
+        store: FrameStore | None = None,
         frame_stride: int = 1,
         augment: A.Compose | None = None,
         seed: int = 0,
@@ -142,38 +171,53 @@ class YoloDataset(Dataset):
         self.root = Path(root)
         self.image_size = image_size
         self.enhancer = enhancer
+        self.store = store
         self.augment = augment
         self.seed = seed
         self.epoch = 0
-        self.images: list[Path] = []
-        self.labels: list[np.ndarray] = []
-        for seq in sequences:
-            for path in frame_paths(self.root, seq, image_dir)[::frame_stride]:
-                self.images.append(path)
-                self.labels.append(read_labels(self.root / seq / "labels" / f"{path.stem}.txt", num_classes))
-        if not self.images:
-            raise ValueError(f"no frames in {root} for sequences {list(sequences)}")
+        image_dir = store.image_dir if store is not None else image_dir
+        self.samples = frame_samples(self.root, sequences, image_dir, frame_stride, num_classes)
+        if store is not None:
+            store.prepare(sequences)
 
     def set_epoch(self, epoch: int) -> None:
         """Choose the augmentation draws of `epoch` (call before iterating a loader over this dataset)."""
         self.epoch = epoch
 
     def __len__(self) -> int:
-        return len(self.images)
+        return len(self.samples)
+
+    def image(self, index: int) -> np.ndarray:
+        """The RGB uint8 frame of sample `index` as stored (enhanced when the dataset enhances)."""
+        seq, frame, path, _ = self.samples[index]
+        if self.store is not None:
+            return np.asarray(self.store.frames(seq)[frame])
+        image = read_rgb(path)
+        return image if self.enhancer is None else self.enhancer(image)
 
     def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        image = read_rgb(self.images[index])
-        if self.enhancer is not None:
-            image = self.enhancer(image)
-        boxed, scale, pad = letterbox(image, self.image_size)
-        labels = letterbox_labels(self.labels[index], image.shape[:2], scale, pad, self.image_size)
+        image, labels = self.image(index), self.samples[index][3]
+        if self.image_size is None:
+            boxed = pad_to_stride(image)
+            scale = np.array([image.shape[1] / boxed.shape[1], image.shape[0] / boxed.shape[0]] * 2)
+            labels = np.column_stack((labels[:, :1], labels[:, 1:] * scale)).astype(np.float32)
+        else:
+            boxed, scale, pad = letterbox(image, self.image_size)
+            labels = letterbox_labels(labels, image.shape[:2], scale, pad, self.image_size)
         if self.augment is not None:
-            seed = np.random.SeedSequence([self.seed, self.epoch, index]).generate_state(1)[0]
-            self.augment.set_random_seed(int(seed))
-            out = self.augment(image=boxed, bboxes=labels[:, 1:], classes=labels[:, 0])
-            boxed = out["image"]
-            labels = np.column_stack((out["classes"], out["bboxes"])).astype(np.float32).reshape(-1, 5)
+            boxed, labels = apply_augmentation(self.augment, boxed, labels, (self.seed, self.epoch, index))
         return boxed, labels
+
+
+def apply_augmentation(
+    augment: A.Compose, image: np.ndarray, labels: np.ndarray, key: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """`augment` applied to an image and its normalised labels, its draws seeded by `key` (integers)."""
+    seed = np.random.SeedSequence(list(key)).generate_state(1)[0]
+    augment.set_random_seed(int(seed))
+    out = augment(image=image, bboxes=labels[:, 1:], classes=labels[:, 0])
+    labels = np.column_stack((out["classes"], out["bboxes"])).astype(np.float32).reshape(-1, 5)
+    return out["image"], labels
 
 
 def collate(batch: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[torch.Tensor, torch.Tensor]:

@@ -1,4 +1,8 @@
-"""Run a trained detector on full frames: letterbox, predict, NMS, and boxes back in frame pixels."""
+"""Run a trained detector on full frames: the network input, NMS, and boxes back in frame pixels.
+
+A frame reaches the network at its native resolution, padded on the right and bottom to a multiple of 32
+(`image_size=None`; 640x480 needs no padding), or letterboxed to a square of `image_size` pixels.
+"""
 
 from __future__ import annotations
 
@@ -7,8 +11,27 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from spacetrack.data.yolo_dataset import letterbox
+from spacetrack.data.yolo_dataset import letterbox, pad_to_stride
 from spacetrack.engine.nms import non_max_suppression
+
+
+def network_input(frame: np.ndarray, image_size: int | None) -> tuple[np.ndarray, float, tuple[int, int]]:
+    """(image the network sees, scale, (pad_x, pad_y)) of an RGB uint8 frame: frame pixels map to input
+    pixels as `x * scale + pad_x`."""
+    if image_size is None:
+        return pad_to_stride(frame), 1.0, (0, 0)
+    if image_size % 32:
+        raise ValueError(f"image_size must be a multiple of 32 pixels (or null: native), got {image_size}")
+    return letterbox(frame, image_size)
+
+
+def to_frame_boxes(det: np.ndarray, scale: float, pad: tuple[int, int], shape: Sequence[int]) -> np.ndarray:
+    """(n, 6) `x1, y1, x2, y2, score, class` rows in network-input pixels -> frame pixels, clipped to the
+    (H, W) frame; boxes left with no area are dropped."""
+    det = np.asarray(det, dtype=np.float64).copy()
+    det[:, [0, 2]] = ((det[:, [0, 2]] - pad[0]) / scale).clip(0, shape[1])
+    det[:, [1, 3]] = ((det[:, [1, 3]] - pad[1]) / scale).clip(0, shape[0])
+    return det[(det[:, 2] > det[:, 0]) & (det[:, 3] > det[:, 1])]
 
 
 @torch.no_grad()
@@ -16,25 +39,22 @@ def detect(
     model: torch.nn.Module,
     frames: Sequence[np.ndarray],
     *,
-    image_size: int,
+    image_size: int | None = None,
     conf_threshold: float = 0.25,
     iou_threshold: float = 0.45,
     max_det: int = 300,
 ) -> list[np.ndarray]:
     """Per RGB uint8 (H, W, 3) frame an (n, 6) float array `x1, y1, x2, y2, score, class` (xyxy pixels
     of that frame, clipped to it), best score first. `model` is a `YOLOv5` in eval mode (or anything
-    with its `predict`); `image_size` is the letterbox side it was trained at.
+    with its `predict`); frames of one call share a size.
     """
-    boxed = [letterbox(frame, image_size) for frame in frames]
+    prepared = [network_input(frame, image_size) for frame in frames]
     device = next(iter(model.parameters()), torch.zeros(())).device
-    x = torch.from_numpy(np.stack([b[0] for b in boxed])).to(device).permute(0, 3, 1, 2).float() / 255
+    x = torch.from_numpy(np.stack([p[0] for p in prepared])).to(device).permute(0, 3, 1, 2).float() / 255
     detections = non_max_suppression(
         model.predict(x).float(), conf_threshold=conf_threshold, iou_threshold=iou_threshold, max_det=max_det
     )
-    out = []
-    for frame, (_, scale, (pad_x, pad_y)), det in zip(frames, boxed, detections, strict=True):
-        det = det.cpu().numpy().astype(np.float64)
-        det[:, [0, 2]] = ((det[:, [0, 2]] - pad_x) / scale).clip(0, frame.shape[1])
-        det[:, [1, 3]] = ((det[:, [1, 3]] - pad_y) / scale).clip(0, frame.shape[0])
-        out.append(det)
-    return out
+    return [
+        to_frame_boxes(det.cpu().numpy(), scale, pad, frame.shape)
+        for frame, (_, scale, pad), det in zip(frames, prepared, detections, strict=True)
+    ]

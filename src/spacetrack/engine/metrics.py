@@ -62,14 +62,22 @@ def interpolated_ap(recall: np.ndarray, precision: np.ndarray) -> float:
 
 
 def detection_metrics(
-    tp: np.ndarray, scores: np.ndarray, pred_classes: np.ndarray, gt_classes: np.ndarray
+    tp: np.ndarray,
+    scores: np.ndarray,
+    pred_classes: np.ndarray,
+    gt_classes: np.ndarray,
+    min_score: float = 0.5,
 ) -> dict[str, object]:
-    """mAP@0.5, mAP@0.5:0.95, and precision/recall at the score threshold with the best mean F1.
+    """mAP@0.5, mAP@0.5:0.95, precision/recall at the score threshold with the best mean F1, and
+    `recall_at_score`: the fraction of ground-truth boxes found at IoU 0.5 by a detection of the right
+    class scoring at least `min_score` (what a tracker with that `min_confidence` gets to see).
 
     `tp` (num_pred, num_thresholds) comes from `match_detections` over all images, `scores` and
     `pred_classes` are per detection, `gt_classes` per ground-truth box. Also returns, for plotting,
     `pr_curves` {class: (recall, precision) at IoU 0.5} and `score_threshold`.
     """
+    found = int(tp[scores >= min_score, 0].sum()) if len(tp) else 0
+    recall_at_score = found / len(gt_classes) if len(gt_classes) else 0.0
     order = np.argsort(-scores, kind="stable")
     tp, scores, pred_classes = tp[order], scores[order], pred_classes[order]
     classes = np.unique(gt_classes)
@@ -98,6 +106,7 @@ def detection_metrics(
         "map50_95": float(ap.mean()) if len(classes) else 0.0,
         "precision": float(p_at[:, best].mean()) if len(classes) else 0.0,
         "recall": float(r_at[:, best].mean()) if len(classes) else 0.0,
+        "recall_at_score": float(recall_at_score),
         "score_threshold": float(grid[best]),
         "pr_curves": curves,
     }

@@ -16,6 +16,7 @@ from typing import Any
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
+from tqdm import tqdm
 
 from spacetrack.data.yolo_dataset import YoloDataset, collate
 from spacetrack.engine.checkpoint import differences, load_checkpoint, peek_checkpoint, save_checkpoint
@@ -23,7 +24,7 @@ from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_le
 from spacetrack.engine.validate import evaluate
 
 # Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
-RESULT_NEUTRAL = ("workers",)
+RESULT_NEUTRAL = ("workers", "progress")
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
 
 
@@ -32,6 +33,25 @@ def resolve_device(device: str) -> torch.device:
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(device)
+
+
+def native_bfloat16() -> bool:
+    """Whether this CPU computes bfloat16 natively (AVX-512 BF16 or AMX, as oneDNN reports it); elsewhere
+    bfloat16 is emulated and slower than float32."""
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
+
+
+def autocast_dtype(device: torch.device, amp: bool) -> torch.dtype | None:
+    """What mixed precision runs the forward pass in: float16 on CUDA, bfloat16 on a CPU that has it
+    natively, None (float32) on other CPUs or with `amp` off."""
+    if not amp:
+        return None
+    if device.type == "cuda":
+        return torch.float16
+    return torch.bfloat16 if device.type == "cpu" and native_bfloat16() else None
 
 
 def unfinished_checkpoint(
@@ -89,6 +109,7 @@ class Trainer:
         conf_threshold: float = 0.001,
         iou_threshold: float = 0.6,
         max_det: int = 300,
+        progress: bool = True,
     ) -> None:
         self.settings = {k: v for k, v in locals().items() if k != "self"}
         for key, value in self.settings.items():
@@ -122,6 +143,8 @@ class Trainer:
         optimizer = build_optimizer(model, lr0=self.lr0, momentum=self.momentum, weight_decay=decay)
         ema = ModelEMA(model, decay=self.ema_decay, tau=self.ema_tau)
         scaler = torch.amp.GradScaler("cuda", enabled=self.amp and device.type == "cuda")
+        self.autocast = autocast_dtype(device, self.amp)
+        print(f"training on {device} in {self.autocast or torch.float32} (amp={self.amp})", flush=True)
         start_epoch, best, history = 0, -1.0, []
         if resume_from is not None:
             state = load_checkpoint(resume_from, arch=model.arch)
@@ -233,7 +256,14 @@ class Trainer:
         model.train()
         optimizer.zero_grad()
         sums, seen, started = torch.zeros(3), 0, time.perf_counter()
-        for i, (images, targets) in enumerate(loader):
+        bar = tqdm(
+            loader,
+            desc=f"epoch {epoch + 1}/{self.epochs}",
+            unit="batch",
+            disable=not self.progress,
+            leave=False,
+        )
+        for i, (images, targets) in enumerate(bar):
             iteration = first_iteration + i
             set_learning_rates(
                 optimizer,
@@ -244,7 +274,7 @@ class Trainer:
                 warmup_momentum=self.warmup_momentum,
                 warmup_bias_lr=self.warmup_bias_lr,
             )
-            with torch.autocast(device.type, enabled=scaler.is_enabled()):
+            with torch.autocast(device.type, dtype=self.autocast, enabled=self.autocast is not None):
                 raw = model(images.to(device).float() / 255)
             loss, components = loss_fn([p.float() for p in raw], targets.to(device))
             if not torch.isfinite(loss):

@@ -26,7 +26,8 @@ def evaluate(
 ) -> tuple[dict[str, float], dict[str, object]]:
     """(metrics, details) of `model` on `loader` (see `yolo_dataset.collate` for the batch format).
 
-    metrics: `map50`, `map50_95`, `precision`, `recall` and, with `loss_fn`, `val_box`, `val_obj`,
+    metrics: `map50`, `map50_95`, `precision`, `recall`, `recall_at_score` (recall at score >= 0.5, see
+    `detection_metrics`) and, with `loss_fn`, `val_box`, `val_obj`,
     `val_cls` (per image). details: `pr_curves` and `examples` (the first batch's images with their
     detections and ground truth, `xyxy` pixels of the letterboxed input) for plots.
     """
@@ -65,7 +66,7 @@ def evaluate(
     result = detection_metrics(
         np.concatenate(tps), np.concatenate(scores), np.concatenate(pred_classes), np.concatenate(gt_classes)
     )
-    metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall")}
+    metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall", "recall_at_score")}
     if loss_fn is not None:
         metrics.update(zip(("val_box", "val_obj", "val_cls"), (losses / num_images).tolist(), strict=True))
     return metrics, {"pr_curves": result["pr_curves"], "examples": examples}

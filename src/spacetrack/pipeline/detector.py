@@ -7,7 +7,6 @@ that changes whenever the detections would (weights hash, settings), for the det
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -15,18 +14,13 @@ import torch
 from torch import nn
 
 from spacetrack.data.layout import read_mot
-from spacetrack.data.yolo_dataset import letterbox
 from spacetrack.engine.checkpoint import load_detector
+from spacetrack.engine.inference import network_input, to_frame_boxes
 from spacetrack.engine.nms import non_max_suppression
+from spacetrack.io import file_hash
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.onnx_backend import MethodModule, check_backend, onnx_session
 from spacetrack.pipeline.sources import FrameSource
-
-
-def file_hash(path: str | Path) -> str:
-    """`sha256:<first 16 hex digits>` of a file's bytes: names a weights file whatever its path."""
-    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    return f"sha256:{digest[:16]}"
 
 
 def resolve_device(name: str) -> torch.device:
@@ -36,18 +30,19 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def onnx_graph(model: YOLOv5, image_size: int) -> tuple[nn.Module, tuple[int, int, int, int]]:
+def onnx_graph(model: YOLOv5, height: int, width: int | None = None) -> tuple[nn.Module, tuple[int, ...]]:
     """What the onnxruntime backend exports: the network with its box decoding (`predict`), and its input
-    shape, one RGB image of image_size x image_size pixels."""
-    return MethodModule(model, "predict"), (1, 3, image_size, image_size)
+    shape, one RGB image of height x width pixels (square when `width` is None)."""
+    return MethodModule(model, "predict"), (1, 3, height, width or height)
 
 
 class YoloDetector:
-    """A trained detector checkpoint on RGB frames: letterbox to `image_size`, predict, torchvision NMS.
+    """A trained detector checkpoint on RGB frames: the frame at native size, predict, torchvision NMS.
 
     weights: a `best.pt` written by `python -m spacetrack.train`.
-    image_size: square letterbox side in pixels (a multiple of 32; smaller is faster, 320 is the CPU
-        training size).
+    image_size: None (the default): each frame at its native resolution, padded to a multiple of 32 (how
+        the detector is validated); an integer letterboxes it to that square (faster, loses small
+        targets).
     conf_threshold: detections scoring below this are dropped (keep it below the tracker's
         `min_confidence`, so that the cache serves every tracker setting).
     iou_threshold: NMS IoU limit between boxes of one class.
@@ -64,7 +59,7 @@ class YoloDetector:
         self,
         *,
         weights: str | Path,
-        image_size: int = 320,
+        image_size: int | None = None,
         conf_threshold: float = 0.1,
         iou_threshold: float = 0.45,
         max_det: int = 100,
@@ -73,58 +68,55 @@ class YoloDetector:
         threads: int = 0,
         onnx_dir: str | Path | None = None,
     ) -> None:
-        if image_size % 32:
-            raise ValueError(f"image_size must be a multiple of 32 pixels, got {image_size}")
+        if image_size is not None and image_size % 32:
+            raise ValueError(
+                f"image_size must be a multiple of 32 pixels (or null: native), got {image_size}"
+            )
         self.device = resolve_device(device)
         self.backend = check_backend(backend, self.device.type)
         self.model = load_detector(weights)
-        self.session = None
-        if self.backend == "onnxruntime":
-            self.session = onnx_session(
-                *onnx_graph(self.model, image_size),
-                threads=threads,
-                device=self.device.type,
-                cache_dir=onnx_dir,
-                name=f"yolo{image_size}",
-            )
-        else:
+        self._sessions: dict[tuple[int, int], object] = {}
+        self._onnx = {"threads": threads, "device": self.device.type, "cache_dir": onnx_dir}
+        if self.backend != "onnxruntime":
             self.model.to(self.device)
         self.image_size, self.conf_threshold = image_size, conf_threshold
         self.iou_threshold, self.max_det = iou_threshold, max_det
         self.identity = (
-            f"yolo {file_hash(weights)} size={image_size} conf={conf_threshold} iou={iou_threshold} "
-            f"backend={self.backend}"
+            f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
+            f"iou={iou_threshold} backend={self.backend}"
         )
+
+    def session(self, height: int, width: int):
+        """The ONNX Runtime session for inputs of height x width pixels (exported on first use)."""
+        if (height, width) not in self._sessions:
+            self._sessions[height, width] = onnx_session(
+                *onnx_graph(self.model, height, width), name=f"yolo{height}x{width}", **self._onnx
+            )
+        return self._sessions[height, width]
 
     def begin(self, source: FrameSource) -> None:
         """Nothing to prepare: a detector sees each frame alone."""
 
     @torch.no_grad()
     def predict(self, boxed: np.ndarray) -> torch.Tensor:
-        """Decoded predictions (1, N, 5 + classes) float32 of one letterboxed RGB uint8 image."""
-        if self.session is not None:
+        """Decoded predictions (1, N, 5 + classes) float32 of one network-input RGB uint8 image."""
+        if self.backend == "onnxruntime":
             x = boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255)
-            return torch.from_numpy(self.session(x)[0])
+            return torch.from_numpy(self.session(*boxed.shape[:2])(x)[0])
         x = torch.from_numpy(boxed).to(self.device).permute(2, 0, 1)[None].float().div_(255)
         return self.model.predict(x).float()
 
     @torch.no_grad()
     def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
-        boxed, scale, (pad_x, pad_y) = letterbox(rgb, self.image_size)
+        boxed, scale, pad = network_input(rgb, self.image_size)
         (det,) = non_max_suppression(
             self.predict(boxed),
             conf_threshold=self.conf_threshold,
             iou_threshold=self.iou_threshold,
             max_det=self.max_det,
         )
-        det = det.cpu().numpy().astype(np.float64)
-        height, width = rgb.shape[:2]
-        x1 = np.clip((det[:, 0] - pad_x) / scale, 0, width)
-        y1 = np.clip((det[:, 1] - pad_y) / scale, 0, height)
-        x2 = np.clip((det[:, 2] - pad_x) / scale, 0, width)
-        y2 = np.clip((det[:, 3] - pad_y) / scale, 0, height)
-        keep = (x2 > x1) & (y2 > y1)
-        return np.column_stack([x1, y1, x2 - x1, y2 - y1, det[:, 4], det[:, 5]])[keep]
+        det = to_frame_boxes(det.cpu().numpy(), scale, pad, rgb.shape)
+        return np.column_stack([det[:, :2], det[:, 2:4] - det[:, :2], det[:, 4:6]])
 
 
 class GroundTruthDetector:

@@ -1,4 +1,5 @@
-"""The ablation study reuses a finished detector run only when it was trained exactly as asked."""
+"""The detector study (cross-validation and ablation) reuses a finished detector run only when it was
+trained exactly as asked, and tabulates its pieces."""
 
 from __future__ import annotations
 
@@ -11,11 +12,9 @@ from omegaconf import open_dict
 from spacetrack.config import CONF_DIR, REPO_ROOT
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 
-spec = importlib.util.spec_from_file_location(
-    "ablation_run", REPO_ROOT / "experiments/ablation_dwt_gam/run.py"
-)
-ablation = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(ablation)
+spec = importlib.util.spec_from_file_location("detector_cv", REPO_ROOT / "experiments/detector_cv/run.py")
+study = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(study)
 
 
 @pytest.fixture
@@ -45,11 +44,26 @@ def test_a_run_is_reused_only_with_the_same_enhancement_and_training(train_confi
     weights.write_bytes(b"weights")
     plain = finished_run(train_config("enhance=none"), weights, 0.4)
     enhanced = finished_run(train_config("enhance=dwt_hsv"), weights, 0.5)
-    found = ablation.matching_run(train_config("enhance=dwt_hsv"))
+    found = study.matching_run(train_config("enhance=dwt_hsv"))
     assert found is not None
     run_id, best, local = found
     assert run_id == enhanced and best["map50"] == 0.5 and local.read_bytes() == b"weights"
     # threads only change the speed: still the same run; other epochs or another model: none
-    assert ablation.matching_run(train_config("enhance=none", "train.threads=1"))[0] == plain
-    assert ablation.matching_run(train_config("enhance=none", "train.trainer.epochs=3")) is None
-    assert ablation.matching_run(train_config("enhance=none", "model=yolov5s_gam")) is None
+    assert study.matching_run(train_config("enhance=none", "train.threads=1"))[0] == plain
+    assert study.matching_run(train_config("enhance=none", "train.trainer.epochs=3")) is None
+    assert study.matching_run(train_config("enhance=none", "model=yolov5s_gam")) is None
+    assert study.matching_run(train_config("enhance=none", "weights=none")) is None  # another start
+
+
+def test_table_lists_each_fold_and_the_means_per_scenario():
+    def piece(slug, fold, map50, dim):
+        overall = {"map50": map50, "map50_95": map50 / 2, "recall_at_score": 0.9, "frames": 300}
+        return {"slug": slug, "fold": fold, "overrides": [], "all": overall,
+                "dim": {"map50": dim, "map50_95": dim / 2, "recall_at_score": 0.8, "frames": 75}}  # fmt: skip
+
+    text = study.table(
+        [piece("yolov5s", 3, 0.9, 0.7), piece("yolov5s", 4, 0.8, 0.5), piece("dwt_hsv_gam", 3, 0.95, 0.9)]
+    )
+    assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | 300 |" in text
+    assert "| YOLOv5s | 3,4 | 0.850 | 0.425 | 0.900 | 0.600 / 0.800 |" in text
+    assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.900 / 0.800 |" in text

@@ -1,0 +1,218 @@
+"""Detector cross-validation: each variant trained on eight folds and scored on the ninth, per scenario.
+
+Each (variant, fold) is one detector training in the MLflow experiment `detector`, the same run that
+`make train FOLD=k ARGS="model=... enhance=..."` makes, so Table 4 finds it, and a fold already trained
+with the same settings is reused instead of trained again. Its best weights are then scored on every
+frame-stride-th frame of the fold's validation sequences at native resolution: mAP@0.5, mAP@0.5:0.95
+and the recall of visible targets at score >= 0.5, overall and per scenario. Each finished piece is
+written to `<out>/results/<variant>_fold<k>.json` at once and `results.json` / `results.md` are rebuilt
+from every piece present, so a killed run loses at most the training it was in, and that one resumes
+(`resume=auto`).
+
+    python experiments/detector_cv/run.py --folds 3                      # plain and improved, fold 3
+    python experiments/detector_cv/run.py --folds 0 1 2 3 4 5 6 7 8 -- train.threads=1
+    python experiments/detector_cv/run.py --variants yolov5s,dwt_hsv,gam,dwt_hsv_gam --folds 0 3 7 \
+        --out experiments/ablation_dwt_gam                               # the DWT/HSV and GAM ablation
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import mlflow
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import OmegaConf, open_dict
+from torch.utils.data import DataLoader
+
+from spacetrack.config import compose_config, resolved_dict
+from spacetrack.data.frame_store import FrameStore
+from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
+from spacetrack.engine.checkpoint import load_detector
+from spacetrack.engine.validate import evaluate
+from spacetrack.io import atomic_write_text
+from spacetrack.mlflow_log import artifact_file, flatten_params, tracking_uri
+from spacetrack.train import fit
+
+HERE = Path(__file__).resolve().parent
+# slug -> (name in the tables, overrides)
+VARIANTS = {
+    "yolov5s": ("YOLOv5s", ["model=yolov5s", "enhance=none"]),
+    "dwt_hsv": ("+DWT/HSV", ["model=yolov5s", "enhance=dwt_hsv"]),
+    "gam": ("+GAM", ["model=yolov5s_gam", "enhance=none"]),
+    "dwt_hsv_gam": ("+DWT/HSV +GAM", ["model=yolov5s_gam", "enhance=dwt_hsv"]),
+}
+METRICS = ("map50", "map50_95", "recall_at_score")
+# Parameters that do not change what training learns: a run differing only in them is reused.
+NEUTRAL = ("threads", "device", "workers")
+
+
+def score(cfg, weights: Path, frame_stride: int) -> dict:
+    """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario."""
+    root = Path(cfg.data_root) / cfg.data.name
+    manifest = load_manifest(root)
+    _, val_names = split_sequences(manifest, cfg.fold)
+    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
+    model = load_detector(weights)
+    enhancer = instantiate(cfg.enhance)
+    image_dir, on_the_fly = image_source(root, val_names, enhancer.name)
+    store = FrameStore(root=root, image_dir=image_dir, enhancer=enhancer if on_the_fly else None,
+                       enhancer_name=enhancer.name)  # fmt: skip
+    groups = {"all": val_names} | {
+        name: [v for v in val_names if scenario[v] == name]
+        for name in sorted({scenario[v] for v in val_names})
+    }
+    out = {}
+    for group, names in groups.items():
+        data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
+                           store=store, frame_stride=frame_stride)  # fmt: skip
+        loader = DataLoader(data, batch_size=4, collate_fn=collate)
+        metrics, _ = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
+                              iou_threshold=0.6, max_det=300)  # fmt: skip
+        out[group] = {k: metrics[k] for k in METRICS} | {"frames": len(data)}
+    return out
+
+
+def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
+    """(run id, best_* metrics, local best.pt) of the newest finished `detector` run trained exactly as
+    `cfg` would be (same fold, data, enhancement, model, start weights and training settings), or None."""
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri(cfg.logger.get("tracking_uri")))
+    experiment = client.get_experiment_by_name(cfg.logger.experiment)
+    if experiment is None:
+        return None
+    wanted = {
+        k: v
+        for k, v in flatten_params(resolved_dict(cfg)).items()
+        if (k.startswith(("data.", "enhance.", "model.", "train.")) or k in ("weights", "weights_partial"))
+        and not any(n in k for n in NEUTRAL)
+    }
+    runs = client.search_runs(
+        [experiment.experiment_id],
+        f"tags.fold = '{cfg.fold}' and attributes.status = 'FINISHED'",
+        order_by=["attributes.start_time DESC"],
+    )
+    for found in runs:
+        params = found.data.params
+        if all(params.get(k) == v for k, v in wanted.items()) and "best_map50" in found.data.metrics:
+            local = artifact_file(found.info.run_id, "weights/best.pt", tracking_uri=client.tracking_uri)
+            metrics = {k[len("best_") :]: v for k, v in found.data.metrics.items() if k.startswith("best_")}
+            return found.info.run_id, metrics, local
+    return None
+
+
+def variant_config(slug: str, fold: int, overrides: list[str]):
+    """The `train` config of one variant and fold, its run folder under outputs/detector_cv."""
+    cfg = compose_config(
+        "train",
+        [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", "resume_dirs=[outputs/detector_cv]",
+         f"out_dir=outputs/detector_cv/{slug}_fold{fold}", *overrides],
+    )  # fmt: skip
+    with open_dict(cfg):
+        cfg.cv_parent_run_id = None
+    return cfg
+
+
+def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, configs: Path) -> dict:
+    """Train (or reuse) one variant on one fold and score it."""
+    cfg = variant_config(slug, fold, overrides)
+    atomic_write_text(configs / f"{slug}_fold{fold}.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    found = matching_run(cfg)
+    if found is None:
+        fit(cfg)
+        found = matching_run(cfg)
+        if found is None:
+            raise RuntimeError(f"the {slug} fold {fold} training finished but its MLflow run is not found")
+    run_id, best, weights = found
+    return {"run_id": run_id, "best_epoch": best.get("epoch"), **score(cfg, weights, frame_stride)}
+
+
+def write_tables(out: Path) -> None:
+    """results.json and results.md from every piece in `out`/results."""
+    results = [json.loads(p.read_text()) for p in sorted((out / "results").glob("*.json"))]
+    atomic_write_text(out / "results.json", json.dumps(results, indent=2) + "\n")
+    atomic_write_text(out / "results.md", table(results))
+
+
+def cell(values: list[float]) -> str:
+    return "-" if not values else f"{np.mean(values):.3f}"
+
+
+def table(results: list[dict]) -> str:
+    """Markdown: per variant and fold the three metrics overall, then the means per scenario."""
+    lines = [
+        "| variant | fold | mAP@0.5 | mAP@0.5:0.95 | recall (score >= 0.5) | frames |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in sorted(results, key=lambda r: (list(VARIANTS).index(r["slug"]), r["fold"])):
+        a = r["all"]
+        lines.append(f"| {VARIANTS[r['slug']][0]} | {r['fold']} | {a['map50']:.3f} | {a['map50_95']:.3f} | "
+                     f"{a['recall_at_score']:.3f} | {a['frames']} |")  # fmt: skip
+    scenarios = sorted(
+        {k for r in results for k in r if isinstance(r[k], dict) and "map50" in r[k]} - {"all"}
+    )
+    lines += ["", "Mean over the folds shown; per scenario mAP@0.5 / recall at score >= 0.5:", ""]
+    header = ["variant", "folds", "mAP@0.5", "mAP@0.5:0.95", "recall"] + scenarios
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for slug, (name, _) in VARIANTS.items():
+        mine = [r for r in results if r["slug"] == slug]
+        if not mine:
+            continue
+        row = [name, ",".join(str(r["fold"]) for r in mine)]
+        row += [cell([r["all"][m] for r in mine]) for m in METRICS]
+        for s in scenarios:
+            have = [r[s] for r in mine if s in r]
+            row.append(
+                "-"
+                if not have
+                else f"{cell([h['map50'] for h in have])} / {cell([h['recall_at_score'] for h in have])}"
+            )
+        lines.append("| " + " | ".join(row) + " |")
+    overrides = sorted({" ".join(r["overrides"]) or "(none)" for r in results})
+    return (
+        f"Overrides `{'`, `'.join(overrides)}`; each fold's best epoch, native 640x480 frames.\n\n"
+        + "\n".join(lines)
+        + "\n"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--folds", type=int, nargs="+", default=list(range(9)))
+    parser.add_argument(
+        "--variants", default="yolov5s,dwt_hsv_gam", help="comma-separated: " + ", ".join(VARIANTS)
+    )
+    parser.add_argument(
+        "--out", type=Path, default=HERE, help="folder of results/, results.json and results.md"
+    )
+    parser.add_argument("--frame-stride", type=int, default=2, help="score every n-th validation frame")
+    parser.add_argument(
+        "overrides", nargs="*", help="Hydra overrides of the train config for every run (after --)"
+    )
+    args = parser.parse_args()
+    slugs = args.variants.split(",")
+    unknown = sorted(set(slugs) - set(VARIANTS))
+    if unknown:
+        parser.error(f"unknown variants {unknown} (known: {', '.join(VARIANTS)})")
+    for folder in (args.out / "results", args.out / "configs"):
+        folder.mkdir(parents=True, exist_ok=True)
+    for fold in args.folds:
+        for slug in slugs:
+            path = args.out / "results" / f"{slug}_fold{fold}.json"
+            if path.is_file():
+                continue
+            result = {"slug": slug, "variant": VARIANTS[slug][0], "fold": fold, "overrides": args.overrides,
+                      **piece(slug, fold, args.overrides, args.frame_stride, args.out / "configs")}  # fmt: skip
+            atomic_write_text(path, json.dumps(result, indent=2) + "\n")
+            write_tables(args.out)
+            print(
+                f"{path}: mAP@0.5 {result['all']['map50']:.3f}, recall {result['all']['recall_at_score']:.3f}"
+            )
+
+
+if __name__ == "__main__":
+    main()

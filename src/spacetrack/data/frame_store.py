@@ -1,0 +1,127 @@
+"""Decoded frames of a dataset, cached once as one uint8 array per sequence and read memory-mapped.
+
+Training reads thousands of samples an epoch; decoding a JPEG (and enhancing it) per sample costs more
+than the crop itself. The store decodes every frame of a sequence once, in frame order, into
+`<cache_dir>/<image_dir>[-<enhancer>]/<seq>.npy`, an (T, H, W, 3) RGB uint8 array, with a `<seq>.json`
+beside it that records what it was made from (the dataset's content hash, the image folder, the
+enhancer, the frame names). A cache that no longer matches is made again; both files are written
+atomically, so a killed build leaves no half-written cache that could be read later.
+
+Size: 0.9 MB a 640x480 frame; the default dataset (5,400 frames) takes 5 GB of disk, read through the
+page cache.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from spacetrack.data.layout import frame_paths, load_manifest
+from spacetrack.io import atomic_path, atomic_write_text
+
+Enhancer = Callable[[np.ndarray], np.ndarray]
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """RGB uint8 (H, W, 3) image at `path`; empty or unreadable files are an error naming the file."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None or bgr.size == 0:
+        raise ValueError(f"{path}: cannot read image (empty, corrupt or not an image)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def default_cache_dir(root: str | Path) -> Path:
+    """`<data_root>/cache/<dataset>/frames`: beside the detection cache of the same dataset."""
+    root = Path(root)
+    return root.parent / "cache" / root.name / "frames"
+
+
+class FrameStore:
+    """RGB uint8 frames of the sequences of the dataset at `root`, decoded once and memory-mapped.
+
+    image_dir: the sequences' image folder (`img`, or a pre-enhanced `img_<name>`).
+    enhancer: applied to each decoded frame before caching (None: the frames as stored), with
+        `enhancer_name` naming it in the cache key.
+    cache_dir: where the arrays go (None: `default_cache_dir(root)`).
+    """
+
+    def __init__(
+        self,
+        *,
+        root: str | Path,
+        image_dir: str = "img",
+        enhancer: Enhancer | None = None,
+        enhancer_name: str = "none",
+        cache_dir: str | Path | None = None,
+        progress: bool = True,
+    ) -> None:
+        self.root = Path(root)
+        self.image_dir = image_dir
+        self.enhancer = enhancer
+        self.enhancer_name = enhancer_name if enhancer is not None else "none"
+        suffix = f"-{self.enhancer_name}" if enhancer is not None else ""
+        self.folder = Path(cache_dir or default_cache_dir(self.root)) / f"{image_dir}{suffix}"
+        self.progress = progress
+        self.content_hash = load_manifest(self.root).get("content_hash")
+        self._open: dict[str, np.ndarray] = {}
+
+    def __getstate__(self) -> dict:
+        # Loader workers open their own maps: a memory map does not travel through pickling.
+        return {**self.__dict__, "_open": {}}
+
+    def _meta(self, seq: str, names: list[str]) -> dict:
+        return {
+            "content_hash": self.content_hash,
+            "image_dir": self.image_dir,
+            "enhancer": self.enhancer_name,
+            "frames": names,
+        }
+
+    def prepare(self, sequences: Sequence[str]) -> None:
+        """Decode and cache every sequence in `sequences` whose cache is missing or stale."""
+        todo = [seq for seq in sequences if not self._is_fresh(seq)]
+        for seq in tqdm(todo, desc="decoding frames", unit="seq", disable=not self.progress or not todo):
+            self._build(seq)
+
+    def _is_fresh(self, seq: str) -> bool:
+        meta_path = self.folder / f"{seq}.json"
+        if not (meta_path.is_file() and (self.folder / f"{seq}.npy").is_file()):
+            return False
+        names = [p.name for p in frame_paths(self.root, seq, self.image_dir)]
+        return json.loads(meta_path.read_text()) == self._meta(seq, names)
+
+    def _build(self, seq: str) -> None:
+        paths = frame_paths(self.root, seq, self.image_dir)
+        first = self._decode(paths[0])
+        self.folder.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.folder / f"{seq}.npy") as tmp:
+            out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(paths), *first.shape))
+            out[0] = first
+            for i, path in enumerate(paths[1:], start=1):
+                image = self._decode(path)
+                if image.shape != first.shape:
+                    raise ValueError(
+                        f"{path}: frame of shape {image.shape}, the sequence's first is {first.shape}"
+                    )
+                out[i] = image
+            out.flush()
+            del out
+        atomic_write_text(self.folder / f"{seq}.json", json.dumps(self._meta(seq, [p.name for p in paths])))
+        self._open.pop(seq, None)
+
+    def _decode(self, path: Path) -> np.ndarray:
+        image = read_rgb(path)
+        return image if self.enhancer is None else self.enhancer(image)
+
+    def frames(self, seq: str) -> np.ndarray:
+        """(T, H, W, 3) uint8 RGB frames of `seq` in frame order (read-only map); cached on first use."""
+        if seq not in self._open:
+            if not self._is_fresh(seq):
+                self._build(seq)
+            self._open[seq] = np.load(self.folder / f"{seq}.npy", mmap_mode="r")
+        return self._open[seq]

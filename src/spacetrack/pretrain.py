@@ -1,0 +1,78 @@
+"""Pretrain the detector on its own dataset and ship the weights: `python -m spacetrack.pretrain`.
+
+YOLOv5 users fine-tune from pretrained weights; these are made here, on `data/space_pretrain`, a dataset
+rendered with another seed than the cross-validation data, so that no fold's sequences are ever seen
+before that fold is held out. The training is `spacetrack.train`'s with `conf/pretrain.yaml`; its best
+EMA weights go to `weights/yolov5s_pretrained.pt` (or `yolov5s_gam_pretrained.pt`) in fp16, with the
+resolved settings inside the file. A stopped run resumes where its last checkpoint left it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from spacetrack.config import CONF_DIR
+from spacetrack.data.layout import load_manifest
+from spacetrack.engine.pretrained import PRETRAINED
+from spacetrack.export_weights import export_detector
+from spacetrack.train import fit
+
+
+def seed_key(seed: int | list[int]) -> tuple[int, ...]:
+    """A sequence's render seed (an integer or the builder's [dataset seed, index] list) as a tuple."""
+    return tuple(seed) if isinstance(seed, (list, tuple)) else (int(seed),)
+
+
+def shared_sequences(pretrain: dict, cv: dict) -> list[str]:
+    """Names of the sequences of manifest `pretrain` that manifest `cv` also holds: rendered from the same
+    seed (the same scene), or, by name and scenario, from the same dataset content."""
+    cv_seeds = {seed_key(s["seed"]) for s in cv["sequences"]}
+    same = [s["name"] for s in pretrain["sequences"] if seed_key(s["seed"]) in cv_seeds]
+    if pretrain.get("content_hash") and pretrain.get("content_hash") == cv.get("content_hash"):
+        same = [s["name"] for s in pretrain["sequences"]]
+    return same
+
+
+def check_disjoint(pretrain_root: Path, cv_root: Path) -> None:
+    """Refuse a pretraining dataset that shares a sequence with the cross-validation dataset."""
+    pretrain = load_manifest(pretrain_root)
+    if Path(pretrain_root).resolve() == Path(cv_root).resolve():
+        raise ValueError(f"the pretraining dataset {pretrain_root} is the cross-validation dataset itself")
+    if not (Path(cv_root) / "manifest.json").is_file():
+        print(f"pretrain: {cv_root} is not built yet; nothing to compare {pretrain_root} with")
+        return
+    shared = shared_sequences(pretrain, load_manifest(cv_root))
+    if shared:
+        raise ValueError(
+            f"the pretraining dataset {pretrain_root} shares {len(shared)} sequences with the "
+            f"cross-validation dataset {cv_root} (same render seeds, e.g. {shared[0]}): pretraining on "
+            "them would leak the folds. Render it with another seed: "
+            "python -m spacetrack.build_data data=pretrain seed=1000 overwrite=true"
+        )
+
+
+def run(cfg: DictConfig) -> dict[str, float]:
+    """Pretrain one model; write its fp16 weights to `cfg.export_dir`; return the best epoch's metrics."""
+    root = Path(cfg.data_root) / cfg.data.name
+    check_disjoint(root, Path(cfg.cv_data))
+    result = fit(cfg)
+    gam = cfg.model.gam_position
+    if gam not in PRETRAINED:
+        raise ValueError(f"no pretrained file name for gam_position {gam!r} (known: {list(PRETRAINED)})")
+    folder = Path(cfg.export_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    written = export_detector(result["best"], folder / PRETRAINED[gam].name)
+    print(f"pretrain: wrote {written} ({written.stat().st_size / 1e6:.1f} MB) from {result['best']}")
+    return result["metrics"]
+
+
+@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="pretrain")
+def main(cfg: DictConfig) -> float:
+    return run(cfg)["fitness"]
+
+
+if __name__ == "__main__":
+    main()

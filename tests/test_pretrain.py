@@ -1,0 +1,42 @@
+"""Pretraining: its dataset must share no sequence with the cross-validation data; its config is the
+training one on the pretraining set."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from spacetrack.config import compose_config
+from spacetrack.pretrain import check_disjoint
+
+
+def manifest(root, seeds, content_hash):
+    root.mkdir()
+    sequences = [
+        {"name": f"seq_{i:03d}_nominal", "seed": seed, "fold": i % 2} for i, seed in enumerate(seeds)
+    ]
+    (root / "manifest.json").write_text(
+        json.dumps({"format_version": 1, "sequences": sequences, "content_hash": content_hash})
+    )
+    return root
+
+
+def test_a_pretraining_set_rendered_from_the_folds_seeds_is_refused(tmp_path):
+    cv = manifest(tmp_path / "space_default", [[0, 0], [0, 1], [0, 2]], "sha256:cv")
+    same = manifest(tmp_path / "same_seed", [[0, 2], [0, 3]], "sha256:other")
+    with pytest.raises(ValueError, match="shares 1 sequences .*seq_000_nominal.*seed=1000"):
+        check_disjoint(same, cv)
+    with pytest.raises(ValueError, match="is the cross-validation dataset itself"):
+        check_disjoint(cv, cv)
+    apart = manifest(tmp_path / "space_pretrain", [[1000, 0], [1000, 1]], "sha256:pre")
+    check_disjoint(apart, cv)  # no error: disjoint seeds
+    check_disjoint(apart, tmp_path / "not_built")  # nothing to compare with yet
+
+
+def test_pretrain_config_trains_on_the_pretraining_set_from_scratch():
+    cfg = compose_config("pretrain", ["model=yolov5s_gam"])
+    assert cfg.data.name == "space_pretrain" and cfg.weights == "none" and cfg.resume == "auto"
+    assert cfg.train.input == "crops" and cfg.train.frame_stride == 2
+    assert cfg.logger.experiment == "pretrain" and cfg.model.gam_position == "after_sppf"
+    assert "slew" in cfg.data.scenario
