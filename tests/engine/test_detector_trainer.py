@@ -75,6 +75,36 @@ def test_resume_after_a_kill_matches_an_uninterrupted_run(straight_run, tmp_path
     assert a["history"][-1]["map50_95"] == b["history"][-1]["map50_95"]
 
 
+def test_a_run_stopped_mid_epoch_resumes_from_the_batch_it_reached(straight_run, tmp_path):
+    tiny_dataset, straight = straight_run
+    real, calls = loss_for(tiny_model(), SIZE), {"n": 0}
+
+    def stop_at_the_second_batch_of_epoch_1(raw, targets):
+        # calls 1-2: epoch 0's two batches, 3: its validation, 4: epoch 1 batch 0, 5: epoch 1 batch 1
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return real(raw, targets)
+
+    with pytest.raises(KeyboardInterrupt):
+        fit(
+            tiny_dataset,
+            tmp_path / "stopped",
+            loss_fn=stop_at_the_second_batch_of_epoch_1,
+            checkpoint_minutes=0,
+        )
+    last = tmp_path / "stopped" / "weights" / "last.pt"
+    state = load_checkpoint(last)
+    assert state["epoch"] == 0 and state["partial"]["batch"] == 1  # epoch 1's first step is in it
+    resumed = fit(tiny_dataset, tmp_path / "stopped", resume_from=last, checkpoint_minutes=0)
+    a, b = load_checkpoint(straight["last"]), load_checkpoint(resumed["last"])
+    for key in ("model", "ema"):
+        for name, value in a[key].items():
+            assert torch.equal(value, b[key][name]), f"{key}.{name} differs after a mid-epoch resume"
+    assert b["partial"] is None
+    assert [r["box"] for r in a["history"]] == pytest.approx([r["box"] for r in b["history"]])
+
+
 def test_resume_with_other_settings_is_refused(straight_run, tmp_path):
     tiny_dataset, result = straight_run
     with pytest.raises(ValueError, match="lr0: checkpoint 0.01, configured 0.02"):

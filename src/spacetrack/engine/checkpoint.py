@@ -1,7 +1,8 @@
 """Detector checkpoints: written atomically, with the architecture and training settings that made them.
 
 A checkpoint is a dict with `arch` (the YOLOv5 constructor keywords), `model` and `ema` state dicts,
-`ema_updates`, `optimizer`, `scaler`, `epoch` (last finished, 0-based), `best_fitness`, `history`
+`ema_updates`, `optimizer`, `scaler`, `epoch` (last finished, 0-based), `partial` (None, or how far the
+next epoch got when the checkpoint was written mid-epoch: `batch`, and the loss sums so far), `best_fitness`, `history`
 (metrics per epoch) and `settings` (the trainer's keywords). Loading one for another architecture,
 or resuming with other settings, is an error that names what differs.
 """

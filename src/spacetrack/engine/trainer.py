@@ -15,16 +15,16 @@ from typing import Any
 
 import torch
 from torch import nn
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from spacetrack.data.yolo_dataset import YoloDataset, collate
+from spacetrack.data.yolo_dataset import collate
 from spacetrack.engine.checkpoint import differences, load_checkpoint, peek_checkpoint, save_checkpoint
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
 from spacetrack.engine.validate import evaluate
 
 # Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
-RESULT_NEUTRAL = ("workers", "progress")
+RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes")
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
 
 
@@ -110,6 +110,7 @@ class Trainer:
         iou_threshold: float = 0.6,
         max_det: int = 300,
         progress: bool = True,
+        checkpoint_minutes: float | None = 10.0,
     ) -> None:
         self.settings = {k: v for k, v in locals().items() if k != "self"}
         for key, value in self.settings.items():
@@ -121,8 +122,8 @@ class Trainer:
         *,
         model: nn.Module,
         loss_fn: Callable,
-        train_set: YoloDataset,
-        val_set: YoloDataset,
+        train_set: Dataset,
+        val_set: Dataset,
         out_dir: str | Path,
         resume_from: str | Path | None = None,
         run_settings: dict[str, Any] | None = None,
@@ -137,61 +138,24 @@ class Trainer:
         """
         device = resolve_device(self.device)
         model.to(device)
-        settings = {**self.settings, **(run_settings or {})}
-        accumulate = max(round(self.nbs / self.batch_size), 1)
-        decay = self.weight_decay * self.batch_size * accumulate / self.nbs
-        optimizer = build_optimizer(model, lr0=self.lr0, momentum=self.momentum, weight_decay=decay)
-        ema = ModelEMA(model, decay=self.ema_decay, tau=self.ema_tau)
-        scaler = torch.amp.GradScaler("cuda", enabled=self.amp and device.type == "cuda")
         self.autocast = autocast_dtype(device, self.amp)
         print(f"training on {device} in {self.autocast or torch.float32} (amp={self.amp})", flush=True)
-        start_epoch, best, history = 0, -1.0, []
+        run = _Run(self, model, {**self.settings, **(run_settings or {})}, extra_state or {}, device)
         if resume_from is not None:
-            state = load_checkpoint(resume_from, arch=model.arch)
-            changed = differences(state["settings"], settings, ignore=RESULT_NEUTRAL)
-            if changed:
-                raise ValueError(f"cannot resume {resume_from} with other settings: {changed}")
-            model.load_state_dict(state["model"])
-            ema.module.load_state_dict(state["ema"])
-            ema.updates = state["ema_updates"]
-            optimizer.load_state_dict(state["optimizer"])
-            scaler.load_state_dict(state["scaler"])
-            start_epoch, best, history = state["epoch"] + 1, state["best_fitness"], state["history"]
+            run.restore(resume_from)
         weights = Path(out_dir) / "weights"
         weights.mkdir(parents=True, exist_ok=True)
         val_loader = DataLoader(
             val_set, batch_size=self.batch_size, num_workers=self.workers, collate_fn=collate
         )
         num_batches = math.ceil(len(train_set) / self.batch_size)
-        warmup_iterations = round(self.warmup_epochs * num_batches)
-
-        for epoch in range(start_epoch, self.epochs):
+        for epoch in range(run.epoch + 1, self.epochs):
             train_set.set_epoch(epoch)
-            order = torch.randperm(
-                len(train_set), generator=torch.Generator().manual_seed(self.seed * 100_003 + epoch)
-            )
-            loader = DataLoader(
-                train_set,
-                batch_size=self.batch_size,
-                sampler=order.tolist(),
-                num_workers=self.workers,
-                collate_fn=collate,
-            )
             components, images_per_s = self._train_epoch(
-                model=model,
-                loss_fn=loss_fn,
-                loader=loader,
-                optimizer=optimizer,
-                scaler=scaler,
-                ema=ema,
-                epoch=epoch,
-                first_iteration=num_batches * epoch,
-                warmup_iterations=warmup_iterations,
-                accumulate=accumulate,
-                last_checkpoint=weights / "last.pt",
+                run, loss_fn, train_set, epoch, num_batches, last_checkpoint=weights / "last.pt"
             )
             metrics, details = evaluate(
-                ema.module,
+                run.ema.module,
                 val_loader,
                 device=device,
                 conf_threshold=self.conf_threshold,
@@ -204,71 +168,59 @@ class Trainer:
                 **dict(zip(("box", "obj", "cls"), components, strict=True)),
                 **metrics,
                 "fitness": fitness(metrics),
-                "lr": optimizer.param_groups[1]["lr"],
+                "lr": run.optimizer.param_groups[1]["lr"],
                 "train_images_per_s": images_per_s,
             }
-            history.append(record)
-            is_best = record["fitness"] > best
-            best = max(best, record["fitness"])
-            state = {
-                "arch": model.arch,
-                "model": model.state_dict(),
-                "ema": ema.module.state_dict(),
-                "ema_updates": ema.updates,
-                "optimizer": optimizer.state_dict(),
-                "scaler": scaler.state_dict(),
-                "epoch": epoch,
-                "best_fitness": best,
-                "history": history,
-                "settings": settings,
-                **(extra_state or {}),
-            }
-            save_checkpoint(weights / "last.pt", state)
+            is_best = run.finish_epoch(epoch, record)
+            save_checkpoint(weights / "last.pt", run.state())
             if is_best:
-                save_checkpoint(weights / "best.pt", state)
+                save_checkpoint(weights / "best.pt", run.state())
             if on_epoch_end is not None:
                 on_epoch_end(record, details, is_best)
         return {
-            "history": history,
-            "best_fitness": best,
+            "history": run.history,
+            "best_fitness": run.best,
             "best": weights / "best.pt",
             "last": weights / "last.pt",
         }
 
     def _train_epoch(
         self,
-        *,
-        model: nn.Module,
+        run: _Run,
         loss_fn: Callable,
-        loader: DataLoader,
-        optimizer: torch.optim.Optimizer,
-        scaler: torch.amp.GradScaler,
-        ema: ModelEMA,
+        train_set: Dataset,
         epoch: int,
-        first_iteration: int,
-        warmup_iterations: int,
-        accumulate: int,
+        num_batches: int,
         last_checkpoint: Path,
     ) -> tuple[list[float], float]:
-        """One pass over `loader`: mean [box, obj, cls] loss per image, and training images per second."""
+        """One pass over the epoch's batches, from the first one a mid-epoch checkpoint had not done: mean
+        [box, obj, cls] loss per image, and training images per second. Every `checkpoint_minutes` a
+        checkpoint is written at the next optimiser step, holding how far the epoch got."""
+        model, optimizer, scaler, ema = run.model, run.optimizer, run.scaler, run.ema
         device = next(model.parameters()).device
         target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
+        order = torch.randperm(
+            len(train_set), generator=torch.Generator().manual_seed(self.seed * 100_003 + epoch)
+        )
+        skip, sums, seen, elapsed = (
+            run.partial.pop("batch", 0),
+            *run.partial.pop("progress", (torch.zeros(3), 0, 0.0)),
+        )
+        run.partial.clear()
+        loader = DataLoader(train_set, batch_size=self.batch_size, sampler=order.tolist()[skip * self.batch_size :],
+                            num_workers=self.workers, collate_fn=collate)  # fmt: skip
+        accumulate = run.accumulate
         model.train()
         optimizer.zero_grad()
-        sums, seen, started = torch.zeros(3), 0, time.perf_counter()
-        bar = tqdm(
-            loader,
-            desc=f"epoch {epoch + 1}/{self.epochs}",
-            unit="batch",
-            disable=not self.progress,
-            leave=False,
-        )
-        for i, (images, targets) in enumerate(bar):
-            iteration = first_iteration + i
+        started = last_save = time.perf_counter()
+        kept_at = f"{epoch} batch {skip}" if skip else (epoch - 1 if epoch else None)
+        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{self.epochs}", unit="batch", disable=not self.progress,
+                   leave=False, initial=skip, total=num_batches)  # fmt: skip
+        for i, (images, targets) in enumerate(bar, start=skip):
             set_learning_rates(
                 optimizer,
-                iteration=iteration,
-                warmup_iterations=warmup_iterations,
+                iteration=num_batches * epoch + i,
+                warmup_iterations=round(self.warmup_epochs * num_batches),
                 target_lr=target_lr,
                 momentum=self.momentum,
                 warmup_momentum=self.warmup_momentum,
@@ -278,19 +230,87 @@ class Trainer:
                 raw = model(images.to(device).float() / 255)
             loss, components = loss_fn([p.float() for p in raw], targets.to(device))
             if not torch.isfinite(loss):
-                kept = f"{last_checkpoint} (epoch {epoch - 1}) is kept" if epoch else "no checkpoint yet"
+                kept = (
+                    f"{last_checkpoint} (epoch {kept_at}) is kept"
+                    if kept_at is not None
+                    else "no checkpoint yet"
+                )
                 raise FloatingPointError(
                     f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped, {kept}. Lower "
                     "train.trainer.lr0 or check the labels."
                 )
             scaler.scale(loss).backward()
-            if (i + 1) % accumulate == 0 or i + 1 == len(loader):
+            sums += components.cpu() * len(images)
+            seen += len(images)
+            if (i + 1) % accumulate == 0 or i + 1 == num_batches:
                 scaler.unscale_(optimizer)
                 nn.utils.clip_grad_norm_(model.parameters(), max_norm=self.grad_clip)
                 scaler.step(optimizer)
                 scaler.update()
                 optimizer.zero_grad()
                 ema.update(model)
-            sums += components.cpu() * len(images)
-            seen += len(images)
-        return (sums / seen).tolist(), seen / (time.perf_counter() - started)
+                now = time.perf_counter()
+                due = self.checkpoint_minutes is not None and now - last_save >= 60 * self.checkpoint_minutes
+                if due and i + 1 < num_batches:
+                    progress = (sums.clone(), seen, elapsed + now - started)
+                    save_checkpoint(
+                        last_checkpoint, run.state(partial={"batch": i + 1, "progress": progress})
+                    )
+                    last_save = now
+        elapsed += time.perf_counter() - started
+        return (sums / max(seen, 1)).tolist(), seen / max(elapsed, 1e-9)
+
+
+class _Run:
+    """What a training carries from step to step and saves: the model, its optimiser, EMA and scaler,
+    the last finished epoch, the best fitness, the history, and how far an unfinished epoch got."""
+
+    def __init__(self, trainer: Trainer, model: nn.Module, settings: dict, extra: dict, device: torch.device):
+        self.model, self.settings, self.extra = model, settings, extra
+        self.accumulate = max(round(trainer.nbs / trainer.batch_size), 1)
+        decay = trainer.weight_decay * trainer.batch_size * self.accumulate / trainer.nbs
+        self.optimizer = build_optimizer(
+            model, lr0=trainer.lr0, momentum=trainer.momentum, weight_decay=decay
+        )
+        self.ema = ModelEMA(model, decay=trainer.ema_decay, tau=trainer.ema_tau)
+        self.scaler = torch.amp.GradScaler("cuda", enabled=trainer.amp and device.type == "cuda")
+        self.epoch, self.best, self.history, self.partial = -1, -1.0, [], {}
+
+    def restore(self, path: str | Path) -> None:
+        """Continue from the checkpoint at `path`; refuse it when its settings differ."""
+        state = load_checkpoint(path, arch=self.model.arch)
+        changed = differences(state["settings"], self.settings, ignore=RESULT_NEUTRAL)
+        if changed:
+            raise ValueError(f"cannot resume {path} with other settings: {changed}")
+        self.model.load_state_dict(state["model"])
+        self.ema.module.load_state_dict(state["ema"])
+        self.ema.updates = state["ema_updates"]
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scaler.load_state_dict(state["scaler"])
+        self.epoch, self.best, self.history = state["epoch"], state["best_fitness"], state["history"]
+        self.partial = dict(state.get("partial") or {})
+
+    def finish_epoch(self, epoch: int, record: dict[str, float]) -> bool:
+        """Record a finished epoch; whether it is the best so far."""
+        self.epoch = epoch
+        self.history.append(record)
+        is_best = record["fitness"] > self.best
+        self.best = max(self.best, record["fitness"])
+        return is_best
+
+    def state(self, partial: dict | None = None) -> dict[str, Any]:
+        """The checkpoint: everything `restore` needs (see `engine.checkpoint`)."""
+        return {
+            "arch": self.model.arch,
+            "model": self.model.state_dict(),
+            "ema": self.ema.module.state_dict(),
+            "ema_updates": self.ema.updates,
+            "optimizer": self.optimizer.state_dict(),
+            "scaler": self.scaler.state_dict(),
+            "epoch": self.epoch,
+            "partial": partial,
+            "best_fitness": self.best,
+            "history": self.history,
+            "settings": self.settings,
+            **self.extra,
+        }
