@@ -22,7 +22,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from spacetrack.data.layout import frame_paths, read_mot
+from spacetrack.data.frame_store import FrameStore
+from spacetrack.data.layout import read_mot
 from spacetrack.reid.crops import Cropper, frame_tensor
 
 
@@ -89,22 +90,23 @@ def collect_crops(
 def cut_crops(
     root: str | Path, table: CropTable, cropper: Cropper, *, scale: float = 1.0, image_dir: str = "img"
 ) -> np.ndarray:
-    """uint8 (N, H, W, 3) RGB crops for every row of `table`, H, W = `scale` x the input size."""
+    """uint8 (N, H, W, 3) RGB crops for every row of `table`, H, W = `scale` x the input size. Frames are
+    read from the dataset's decoded-frame cache (`FrameStore`, shared with the detector training), so
+    the nine folds' trainings decode each frame once between them."""
     h, w = round(cropper.height * scale), round(cropper.width * scale)
     out = np.zeros((len(table), h, w, 3), dtype=np.uint8)
+    store = FrameStore(root=root, image_dir=image_dir)
+    store.prepare(table.sequences)
     for s, seq in enumerate(table.sequences):
-        paths = frame_paths(root, seq, image_dir)
+        frames = store.frames(seq)
         in_seq = np.flatnonzero(table.sequence == s)
         for f in np.unique(table.frame[in_seq]):
             rows = in_seq[table.frame[in_seq] == f]
-            if f > len(paths):
+            if f > len(frames):
                 raise ValueError(
-                    f"{Path(root) / seq}: ground truth names frame {f}, only {len(paths)} images"
+                    f"{Path(root) / seq}: ground truth names frame {f}, only {len(frames)} images"
                 )
-            image = cv2.imread(str(paths[f - 1]), cv2.IMREAD_COLOR)
-            if image is None:
-                raise ValueError(f"{paths[f - 1]} is not a readable image")
-            crops = cropper(frame_tensor(cv2.cvtColor(image, cv2.COLOR_BGR2RGB)), table.box[rows], scale)
+            crops = cropper(frame_tensor(np.array(frames[f - 1])), table.box[rows], scale)
             out[rows] = (crops.permute(0, 2, 3, 1) * 255).round().clamp_(0, 255).byte().numpy()
     return out
 

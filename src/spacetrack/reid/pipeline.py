@@ -20,6 +20,7 @@ from torch.utils.data import DataLoader
 from spacetrack.config import resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.engine.checkpoint import differences, save_checkpoint
+from spacetrack.engine.trainer import autocast_dtype
 from spacetrack.io import atomic_write_text, load_torch_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.reid.crops import Cropper
@@ -146,6 +147,7 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
             weight_decay=t.weight_decay,
             warmup_epochs=t.warmup_epochs,
             device=device,
+            autocast=autocast_dtype(device, t.amp),
             on_epoch=on_epoch,
             save_state=save_state,
             resume_state=resume_state,

@@ -35,6 +35,7 @@ def fit(
     weight_decay: float,
     warmup_epochs: float,
     device: torch.device,
+    autocast: torch.dtype | None = None,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     save_state: Callable[[dict[str, Any]], None] | None = None,
     resume_state: dict[str, Any] | None = None,
@@ -43,12 +44,14 @@ def fit(
     epoch's mean loss, accuracy, learning rate and softmax scale, also passed to `on_epoch(epoch, stats)`.
 
     After each epoch `save_state(state)` gets everything needed to go on; `resume_state` (such a state)
-    continues after its epoch. The loader must draw its order from its own `generator`.
+    continues after its epoch. The loader must draw its order from its own `generator`. `autocast`:
+    the mixed-precision type of the forward pass (see `engine.trainer.autocast_dtype`; None: float32).
     """
     net.to(device).train()
     head.to(device).train()
     params = list(net.parameters()) + list(head.parameters())
     optimizer = torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
+    scaler = torch.amp.GradScaler("cuda", enabled=autocast is torch.float16)
     total, warmup = epochs * len(loader), round(warmup_epochs * len(loader))
     if (save_state is not None or resume_state is not None) and loader.generator is None:
         raise ValueError("a resumable re-ID training needs a DataLoader with its own generator")
@@ -71,11 +74,13 @@ def fit(
             crops, labels = crops.to(device), labels.to(device)
             for group in optimizer.param_groups:
                 group["lr"] = lr_at(step, total=total, warmup=warmup, lr=lr)
-            logits = head(net(crops))
+            with torch.autocast(device.type, dtype=autocast, enabled=autocast is not None):
+                logits = head(net(crops)).float()
             loss = F.cross_entropy(logits, labels)
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
+            scaler.scale(loss).backward()
+            scaler.step(optimizer)
+            scaler.update()
             step += 1
             loss_sum += loss.item() * len(labels)
             correct += int((logits.argmax(1) == labels).sum())

@@ -1,0 +1,139 @@
+"""Detector training throughput: float32 against bfloat16 autocast, and decoded-frame crops against a
+JPEG decode per sample, in one run -> reports/train.json and reports/train.md.
+
+    python benchmarks/bench_train.py                 # YOLOv5s, 256-px crops, batch 8, 1 and 2 threads
+    python benchmarks/bench_train.py --steps 3 --threads 1
+
+Training step: forward, YOLO loss, backward and SGD step on a batch of real crops (random ones where
+the dataset is not built). bfloat16 runs through `torch.autocast("cpu", dtype=torch.bfloat16)`; the
+report says whether this CPU computes bfloat16 natively (`native_bfloat16`, as the trainer detects it:
+only then does the trainer use it). Steps of both precisions alternate, so load changes hit both alike.
+Data: samples per second of `CropDataset` reading the `FrameStore` cache against the whole-frame
+`YoloDataset` that decodes the JPEG (and letterboxes it) for every sample.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from common import interleaved_samples, markdown_table, summarize, write_report
+from spacetrack.data.crops import CropDataset
+from spacetrack.data.frame_store import FrameStore
+from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, collate
+from spacetrack.engine.loss import YoloLoss
+from spacetrack.engine.optim import build_optimizer
+from spacetrack.engine.trainer import native_bfloat16
+from spacetrack.models.yolo import YOLOv5
+
+AUGMENT = {"hue": 5, "saturation": 30, "value": 30, "fliplr": 0.5, "flipud": 0.5, "scale": 0.25,
+           "translate": 0.0, "fill": 0}  # fmt: skip
+
+
+def crop_data(root: Path, size: int) -> CropDataset | None:
+    if not (root / "manifest.json").is_file():
+        return None
+    train, _ = split_sequences(load_manifest(root), 3)
+    store = FrameStore(root=root)
+    return CropDataset(root=root, sequences=train, num_classes=3, store=store, crop_size=size,
+                       frame_stride=4, augment=build_augmentation(**AUGMENT))  # fmt: skip
+
+
+def training_step(size: int, batch: int, data: CropDataset | None, dtype: torch.dtype | None):
+    """A callable running one training step of a fresh YOLOv5s in `dtype` autocast (None: float32)."""
+    torch.manual_seed(0)
+    model = YOLOv5(num_classes=3).train()
+    loss_fn = YoloLoss(anchors=model.detect.anchors, strides=model.stride, num_classes=3, image_size=size)
+    optimizer = build_optimizer(model, lr0=0.001, momentum=0.9, weight_decay=5e-4)
+    if data is not None:
+        images, targets = collate([data[i] for i in range(batch)])
+    else:
+        images = torch.randint(0, 255, (batch, 3, size, size), dtype=torch.uint8)
+        targets = torch.tensor([[i, i % 3, 0.5, 0.5, 0.1, 0.1] for i in range(batch)])
+
+    def step() -> None:
+        with torch.autocast("cpu", dtype=dtype or torch.bfloat16, enabled=dtype is not None):
+            raw = model(images.float() / 255)
+        loss, _ = loss_fn([p.float() for p in raw], targets)
+        loss.backward()
+        optimizer.step()
+        optimizer.zero_grad()
+
+    return step
+
+
+def data_rates(root: Path, size: int, samples: int) -> list[list[object]]:
+    """Samples/s of crops from the decoded cache and of whole frames decoded per sample."""
+    crops = crop_data(root, size)
+    if crops is None:
+        return []
+    train, _ = split_sequences(load_manifest(root), 3)
+    decoded = YoloDataset(root=root, sequences=train, num_classes=3, image_size=320, frame_stride=4,
+                          augment=build_augmentation(**AUGMENT | {"fill": 114}))  # fmt: skip
+    rows = []
+    for name, data in (
+        ("crops from the decoded-frame cache", crops),
+        ("JPEG decode per sample (320 letterbox)", decoded),
+    ):
+        picks = np.random.default_rng(0).integers(len(data), size=samples)
+        started = time.perf_counter()
+        for i in picks:
+            data[int(i)]
+        rows.append([name, samples / (time.perf_counter() - started)])
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--size", type=int, default=256, help="crop side, pixels")
+    parser.add_argument("--batch", type=int, default=8)
+    parser.add_argument("--steps", type=int, default=5, help="timed steps per precision and thread count")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--data", type=Path, default=Path("data/space_default"))
+    args = parser.parse_args()
+    crops = crop_data(args.data, args.size)
+    rows, record = (
+        [],
+        {"size": args.size, "batch": args.batch, "native_bfloat16": native_bfloat16(), "rows": []},
+    )
+    for threads in tqdm(args.threads, desc="thread counts", unit="setting"):
+        torch.set_num_threads(threads)
+        calls = {"float32": training_step(args.size, args.batch, crops, None),
+                 "bfloat16": training_step(args.size, args.batch, crops, torch.bfloat16)}  # fmt: skip
+        wall, _ = interleaved_samples(calls, repeats=args.steps)
+        fp32 = summarize(wall["float32"], scale=1.0)["median"]
+        for name, samples in wall.items():
+            median = summarize(samples, scale=1.0)["median"]
+            entry = {"precision": name, "threads": threads, "img_per_s": args.batch / median,
+                     "step_s": summarize(samples, scale=1.0), "x_float32_time": median / fp32}  # fmt: skip
+            record["rows"].append(entry)
+            rows.append([name, threads, entry["img_per_s"], median, entry["x_float32_time"]])
+    data = data_rates(args.data, args.size, samples=200)
+    record["data"] = [{"source": r[0], "samples_per_s": r[1]} for r in data]
+    md = (
+        f"# Detector training throughput (CPU)\n\nYOLOv5s, batch {args.batch} of {args.size}-px crops "
+        f"({'real crops of ' + str(args.data) if crops else 'random images'}), forward + loss + backward + "
+        f"SGD step, medians of {args.steps} steps per row, precisions alternating. This CPU computes "
+        f"bfloat16 natively: **{'yes' if record['native_bfloat16'] else 'no'}** (the trainer uses "
+        "bfloat16 only where it does; elsewhere it is emulated).\n\n"
+        + markdown_table(["precision", "threads", "img/s", "s per step", "x float32 time"], rows)
+    )
+    if data:
+        md += "\nData pipeline, one process, 200 random samples:\n\n" + markdown_table(
+            ["source", "samples/s"], data
+        )
+    json_path, md_path = write_report("train", record, md)
+    print(md)
+    print(f"spacetrack bench_train: files: {json_path} {md_path}")
+
+
+if __name__ == "__main__":
+    main()
