@@ -137,3 +137,32 @@ def test_cross_validation_parent_gets_mean_and_std(tiny_dataset, tmp_path, monke
     artifacts = {a.path for a in client.list_artifacts(children[0].info.run_id, "plots")}
     assert artifacts == {"plots/pr_curve.png", "plots/val_predictions.png"}
     assert sorted(c.data.tags["fold"] for c in children) == ["0", "1"]
+
+
+def test_training_starts_from_the_shipped_pretrained_weights_of_its_model(
+    tiny_dataset, tmp_path, monkeypatch, capsys
+):
+    import torch
+
+    from spacetrack.engine import pretrained
+    from spacetrack.export_weights import _half
+    from spacetrack.models.yolo import YOLOv5
+
+    narrow = YOLOv5(num_classes=5, width_multiple=0.125)  # another class count: the head starts afresh
+    torch.save({"arch": narrow.arch, "ema": _half(narrow.state_dict())}, tmp_path / "pre.pt")
+    monkeypatch.setitem(pretrained.PRETRAINED, None, tmp_path / "pre.pt")
+    run(config(tiny_dataset, tmp_path, "fold=3", "model.width_multiple=0.125"))
+    out = capsys.readouterr().out
+    assert f"from {tmp_path / 'pre.pt'}" in out and "the head was re-initialised" in out
+    run(config(tiny_dataset, tmp_path / "scratch", "fold=3", "model.width_multiple=0.125", "weights=none"))
+    assert "training from scratch (weights=none)" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="another architecture .*gam_position"):
+        run(
+            config(
+                tiny_dataset,
+                tmp_path / "gam",
+                "fold=3",
+                "model=yolov5s_gam_light",
+                f"weights={tmp_path / 'pre.pt'}",
+            )
+        )
