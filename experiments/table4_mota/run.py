@@ -46,11 +46,15 @@ GT = ["detector=ground_truth"]
 YOLO = ["detector=yolo", "detector_run.model=none", "enhance=none"]
 GAM = ["detector=yolo", "detector_run.model=after_sppf", "enhance=dwt_hsv"]
 # The paper's pipeline: the per-frame filter, no camera motion in the tracker.
-PAPER = ["tracker.camera_motion=false"]
+PAPER = ["tracker.camera_motion=false", "tracker.output_box=state"]
 NOFILTER = ["dynamic_filter=false"] + PAPER
 PAPER_FILTER = ["dynamic_filter=frame", "dynamic_hold.frames=0"] + PAPER  # the paper's per-frame filter
 HOLD = ["dynamic_filter=frame", "dynamic_hold.frames=30"] + PAPER
-TRACK = ["dynamic_filter=track", "tracker.camera_motion=auto"]  # beyond the paper: conf/track.yaml's default
+TRACK = [
+    "dynamic_filter=track",
+    "tracker.camera_motion=auto",
+    "tracker.output_box=detection",
+]  # beyond the paper: conf/track.yaml's default
 # No fold's own re-ID network is in this checkout's MLflow store: the ground-truth DeepSORT rows use the
 # shipped one (trained with fold 3 held out; on the other folds it has seen the identities).
 SHIPPED_REID = ["reid.weights=weights/reid_fold3.pt"]
@@ -129,8 +133,9 @@ def _without_unused(settings: dict) -> dict:
         del settings["dynamic_hold"]  # no hold (or no filter to hold)
     if mode != "track":
         del settings["dynamic_track"]
-    if settings["tracker"].get("camera_motion") is False:
-        del settings["tracker"]["camera_motion"]
+    for key, before in (("camera_motion", False), ("output_box", "state")):
+        if settings["tracker"].get(key) == before:
+            del settings["tracker"][key]
     return settings
 
 

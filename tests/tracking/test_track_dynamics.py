@@ -129,6 +129,17 @@ def test_out_of_range_settings_are_an_error_naming_the_key(key, value):
         TrackDynamics(**{key: value})
 
 
+def test_output_box_detection_writes_the_matched_box_and_the_state_on_a_missed_frame():
+    frames = [([(100 + 2 * f + (0.7 if f % 2 else -0.7), 100, 20, 20)], None, None) for f in range(6)]
+    frames.append(([], None, None))
+    state = run(frames)
+    detection = run(frames, output_box="detection")
+    for f in range(2, 6):
+        np.testing.assert_array_equal(detection[f][1], frames[f][0][0])
+        assert not np.allclose(state[f][1], frames[f][0][0])  # the reference writes the Kalman state
+    np.testing.assert_array_equal(detection[6][1], state[6][1])  # no match: the predicted state
+
+
 def test_an_unknown_camera_motion_mode_is_an_error():
     with pytest.raises(ValueError, match="tracker.camera_motion must be false, true or auto, got 'on'"):
         DeepSort(**SORT, camera_motion="on")

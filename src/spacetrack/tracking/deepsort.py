@@ -33,6 +33,8 @@ class DeepSort:
     dynamics: beyond the reference, decide per track what moves (`tracking.dynamic`) from the per-box
         blob flags passed to `step` and the track's own motion against the scene, and output only the
         tracks that move; None outputs every confirmed track.
+    output_box: state (the reference: the Kalman state's box) or detection (the matched detection's box
+        on frames with one).
     """
 
     def __init__(
@@ -50,6 +52,7 @@ class DeepSort:
         min_detection_height: float = 0.0,
         camera_motion: bool | str = False,
         dynamics: TrackDynamics | None = None,
+        output_box: str = "state",
     ) -> None:
         metric = None
         if max_cosine_distance is not None:
@@ -64,6 +67,7 @@ class DeepSort:
             lambda_=lambda_,
             gating_threshold=gating_threshold,
             dynamics=dynamics,
+            output_box=output_box,
         )
         self.camera = CameraMotion(camera_motion)
         self.min_confidence = min_confidence

@@ -44,6 +44,7 @@ class Track:
         self.state = TrackState.TENTATIVE
         self.features: list[np.ndarray] = [] if feature is None else [feature]
         self.evidence: MotionEvidence | None = None
+        self.detection_tlwh: np.ndarray | None = None  # the box `tlwh` of its last matched detection
         self._n_init = n_init
         self._max_age = max_age
 

@@ -19,6 +19,9 @@ from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
 from spacetrack.tracking.track import Track
 
 
+OUTPUT_BOXES = ("state", "detection")
+
+
 class Tracker:
     """DeepSORT's association and track management over a stream of frames.
 
@@ -31,6 +34,8 @@ class Tracker:
     gating_threshold: Mahalanobis gate t(1) of eq. (12) (0.95 chi-square quantile, 4 dof).
     dynamics: decide per track whether it moves and output only the tracks that do; None outputs every
         confirmed track (the reference).
+    output_box: "state", the Kalman state's box (the reference); "detection", the box of the detection
+        matched in this frame (the state's box on a frame without one).
     """
 
     def __init__(
@@ -43,9 +48,13 @@ class Tracker:
         lambda_: float = 0.0,
         gating_threshold: float = CHI2_95_4DOF,
         dynamics: TrackDynamics | None = None,
+        output_box: str = "state",
     ) -> None:
         if not 0.0 <= lambda_ <= 1.0:
             raise ValueError(f"lambda_ must lie in [0, 1], got {lambda_}")
+        if output_box not in OUTPUT_BOXES:
+            raise ValueError(f"tracker.output_box must be one of {OUTPUT_BOXES}, got {output_box!r}")
+        self.output_box = output_box
         self.metric = metric
         self.max_iou_distance = max_iou_distance
         self.max_age = max_age
@@ -115,9 +124,16 @@ class Tracker:
             and t.time_since_update <= 1
             and (t.evidence is None or t.evidence.dynamic == dynamic)
         ]
-        return list(zip([t.track_id for t in shown], self._boxes(shown), strict=True))
+        boxes = self._boxes(shown)
+        if self.output_box == "detection":
+            for i, t in enumerate(shown):
+                if t.time_since_update == 0:
+                    boxes[i] = t.detection_tlwh
+        return list(zip([t.track_id for t in shown], boxes, strict=True))
 
     def _observe(self, track: Track, detections: Detections, d: int, offset: tuple[float, float]) -> None:
+        """Note the detection `d` matched to `track`: its box, and the track's motion evidence."""
+        track.detection_tlwh = detections.tlwh[d]
         if self.dynamics is None:
             return
         if track.evidence is None:
