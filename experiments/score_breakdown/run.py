@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from spacetrack.data.layout import load_manifest, read_mot
 from spacetrack.evaluation.mot import accumulate, ignored_rows
 from spacetrack.io import atomic_write_text
-from spacetrack.data.layout import load_manifest, read_mot
 from spacetrack.tracking.iou_matching import iou_matrix
 
 HERE = Path(__file__).resolve().parent

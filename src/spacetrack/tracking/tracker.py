@@ -18,7 +18,6 @@ from spacetrack.tracking.linear_assignment import INFTY_COST, matching_cascade, 
 from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
 from spacetrack.tracking.track import Track
 
-
 OUTPUT_BOXES = ("state", "detection")
 
 
