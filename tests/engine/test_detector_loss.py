@@ -11,9 +11,9 @@ SIZE = 640
 STRIDES = torch.tensor([8.0, 16.0, 32.0])
 
 
-def make_loss(num_classes: int = 1) -> YoloLoss:
+def make_loss(num_classes: int = 1, **kwargs) -> YoloLoss:
     anchors = torch.tensor(COCO_ANCHORS).view(3, 3, 2)
-    return YoloLoss(anchors=anchors, strides=STRIDES, num_classes=num_classes, image_size=SIZE)
+    return YoloLoss(anchors=anchors, strides=STRIDES, num_classes=num_classes, image_size=SIZE, **kwargs)
 
 
 def zero_outputs(num_classes: int = 1, batch: int = 1) -> list[torch.Tensor]:
@@ -80,3 +80,18 @@ def test_ciou_is_one_for_identical_boxes_and_penalises_distance():
     assert ciou(box, box).item() == pytest.approx(1.0, abs=1e-6)
     far = torch.tensor([[150.0, 50.0, 20.0, 10.0]])
     assert ciou(box, far).item() < 0
+
+
+def test_iou_ratio_sets_the_objectness_target_of_matched_anchors():
+    """With iou_ratio 0 every matched anchor learns objectness 1 whatever its box; with 1, its IoU. For
+    confident predictions (objectness logit 4 everywhere) the first target is nearer, so its loss is lower."""
+    raw = zero_outputs(num_classes=3)
+    for p in raw:
+        p[..., 4] = 4.0
+    targets = torch.tensor([[0, 1, 0.5, 0.5, 0.2, 0.3]])
+    _, by_iou = make_loss(3, iou_ratio=1.0)(raw, targets)
+    _, by_one = make_loss(3, iou_ratio=0.0)(raw, targets)
+    assert by_iou[0] == by_one[0] and by_iou[2] == by_one[2]  # box and class terms do not change
+    assert by_one[1] < by_iou[1]
+    with pytest.raises(ValueError, match="iou_ratio must lie in"):
+        make_loss(3, iou_ratio=1.5)

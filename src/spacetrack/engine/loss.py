@@ -23,7 +23,9 @@ class YoloLoss:
 
     The gains are the reference ones for 3 levels, 80 classes and 640-pixel inputs; they are rescaled
     here for the actual number of levels, classes and `image_size` (pixels) so that one set of keys
-    works at every input size.
+    works at every input size. The objectness target of a matched anchor is `(1 - iou_ratio) +
+    iou_ratio * IoU` (YOLOv5's `gr`; 1.0: the IoU itself, so small boxes, whose IoU is lower, learn
+    lower scores).
     """
 
     def __init__(
@@ -38,7 +40,11 @@ class YoloLoss:
         cls: float = 0.5,
         anchor_t: float = 4.0,
         balance: Sequence[float] = (4.0, 1.0, 0.4),
+        iou_ratio: float = 1.0,
     ) -> None:
+        if not 0 <= iou_ratio <= 1:
+            raise ValueError(f"loss.iou_ratio must lie in [0, 1], got {iou_ratio}")
+        self.iou_ratio = iou_ratio
         num_levels = len(anchors)
         if len(balance) != num_levels:
             raise ValueError(f"balance has {len(balance)} entries for {num_levels} detection levels")
@@ -69,7 +75,8 @@ class YoloLoss:
                 pwh = (ps[:, 2:4].sigmoid() * 2) ** 2 * anchor
                 iou = ciou(torch.cat((pxy, pwh), dim=1), tbox)
                 lbox = lbox + (1 - iou).mean()
-                tobj[b, a, gj, gi] = iou.detach().clamp(min=0).to(tobj.dtype)
+                score = (1 - self.iou_ratio) + self.iou_ratio * iou.detach().clamp(min=0)
+                tobj[b, a, gj, gi] = score.to(tobj.dtype)
                 if self.num_classes > 1:
                     onehot = torch.zeros_like(ps[:, 5:])
                     onehot[torch.arange(len(tcls), device=device), tcls] = 1.0
