@@ -330,3 +330,48 @@ def test_artifact_file_is_the_stored_file_or_one_kept_download(
     assert [p.name for p in kept.parent.iterdir()] == ["best.pt"]  # no scratch folder left beside it
     kept.write_bytes(b"kept")
     assert mlflow_log.artifact_file(run_id, "weights/best.pt", tracking_uri=store).read_bytes() == b"kept"
+
+
+def test_a_sweep_job_is_named_after_its_swept_values(
+    config_dir: Path, store: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=names", "model.lr=0.2")
+    with mlflow_log.start_run(cfg, run_name="sweep") as parent:
+        pass
+    monkeypatch.setenv(mlflow_log.SWEPT_ENV, "model.lr,model.layers")
+    with mlflow_log.start_run(cfg, run_name="fold3", parent_run_id=parent.info.run_id) as child:
+        pass
+    with mlflow_log.start_run(cfg, run_name="alone") as alone:  # not a job of the sweep
+        pass
+    client = mlflow.MlflowClient()
+    logged = client.get_run(child.info.run_id)
+    assert logged.info.run_name == "lr=0.2 layers=[1, 2]"
+    assert logged.data.tags["swept"] == "model.lr,model.layers"
+    assert logged.data.tags["model.lr"] == logged.data.params["model.lr"] == "0.2"
+    assert client.get_run(alone.info.run_id).info.run_name == "alone"
+    assert "swept" not in client.get_run(alone.info.run_id).data.tags
+    assert mlflow_log.point_name({"a.lr": "1", "b.lr": "2"}) == "a.lr=1 b.lr=2"
+
+
+def test_ui_links_and_pinned_columns(config_dir: Path, store: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    from spacetrack import mlflow_ui
+
+    monkeypatch.setenv("PORT", "5099")
+    assert mlflow_ui.ui_base(store) == "http://127.0.0.1:5099"
+    assert mlflow_ui.ui_base("http://tracking.example:5000/") == "http://tracking.example:5000"
+    assert mlflow_ui.runs_view_url("7", "v1", "http://h:1") == (
+        "http://h:1/#/experiments/7?workflowType=machine_learning&viewStateShareKey=v1"
+    )
+    cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=views")
+    with mlflow_log.start_run(cfg, run_name="scored") as run:
+        mlflow_log.log_metrics_step({"mota": 0.5, "idf1": 0.6, "num_frames": 9.0}, step=0)
+    assert mlflow_ui.last_run_url() == (
+        f"http://127.0.0.1:5099/#/experiments/{run.info.experiment_id}/runs/{run.info.run_id}"
+        f" (serve that store with: MLFLOW_TRACKING_URI={store} make ui)"
+    )
+    links = dict(mlflow_ui.pin_views(store))
+    experiment = mlflow.MlflowClient().get_experiment(run.info.experiment_id)
+    assert links["views"] == mlflow_ui.runs_view_url(experiment.experiment_id, mlflow_ui.DEFAULT_VIEW, store)
+    view = json.loads(experiment.tags[mlflow_ui.VIEW_TAG + mlflow_ui.DEFAULT_VIEW])
+    assert view["selectedColumns"] == ["metrics.`mota`", "metrics.`idf1`"]  # headline metrics it logged
+    assert view["orderByKey"] == "attributes.start_time" and view["orderByAsc"] is False

@@ -27,6 +27,8 @@ from urllib.request import url2pathname
 
 import mlflow
 import numpy as np
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from mlflow.entities import RunStatus
 from mlflow.exceptions import MlflowException
 from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
@@ -38,6 +40,8 @@ DEFAULT_TRACKING_URI = "sqlite:///mlflow.db"
 _SQLITE = "sqlite:///"
 PARENT_RUN_TAG = "mlflow.parentRunId"
 GIT_COMMIT_TAG = "mlflow.source.git.commit"
+NOTE_TAG = "mlflow.note.content"  # the run's description in the UI (markdown)
+SWEPT_ENV = "SPACETRACK_SWEPT_KEYS"  # the keys a multirun sweeps, comma-separated (spacetrack.multirun)
 # Tells the MLflow 3 UI these are model-training experiments (runs table, metric charts), not GenAI ones.
 EXPERIMENT_TAGS = {"mlflow.experimentKind": "custom_model_development"}
 
@@ -65,6 +69,27 @@ def flatten_params(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
         else:
             flat[name] = str(value)[:MAX_PARAM_VAL_LENGTH]
     return flat
+
+
+def sweep_point(cfg: DictConfig) -> dict[str, str]:
+    """{key: this job's value} of the keys the running multirun sweeps ({} outside a multirun's job): the
+    job's overrides as given (`model=yolov5s_gam` for a config group), else the config's values."""
+    keys = [k for k in os.environ.get(SWEPT_ENV, "").split(",") if k]
+    if not keys:
+        return {}
+    given = {}
+    if HydraConfig.initialized():
+        for override in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task)):
+            given[override.key_or_group] = override.get_value_element_as_str()
+    return {k: given[k] if k in given else str(OmegaConf.select(cfg, k)) for k in keys}
+
+
+def point_name(point: Mapping[str, str]) -> str:
+    """`max_cosine_distance=0.2 max_iou_distance=0.5`: the last part of each key, unless two share it."""
+    short = {k: k.rsplit(".", 1)[-1] for k in point}
+    if len(set(short.values())) < len(short):
+        short = {k: k for k in point}
+    return " ".join(f"{short[k]}={v}" for k, v in point.items())
 
 
 def _experiment_id(name: str, uri: str) -> str:
@@ -157,8 +182,9 @@ def start_run(
     child of that run (a fold of a cross-validation); `nested=True` makes it a child of the active run.
     With `continue_run_id` (a resumed training) that run is reopened when this store has it: its params
     stay as first logged, the new config goes to `config_resume<n>.yaml` and tag `resumes` counts; when
-    the store lacks it a new run starts. The run ends FINISHED, FAILED when the block raises, or KILLED
-    on Ctrl-C or SIGTERM.
+    the store lacks it a new run starts. A child in a multirun's job is named after its swept values
+    (`sweep_point`), which also come first among its params and as tags. The run ends FINISHED, FAILED
+    when the block raises, or KILLED on Ctrl-C or SIGTERM.
     """
     if not cfg.logger.enabled:
         yield None
@@ -170,6 +196,10 @@ def start_run(
     if previous is not None and previous.info.experiment_id != experiment_id:
         previous = None
     config_text = OmegaConf.to_yaml(cfg, resolve=True)
+    point = sweep_point(cfg) if parent_run_id is not None else {}
+    if point:
+        run_name = point_name(point)
+        tags = {"swept": ",".join(point), **point, **(tags or {})}
     if previous is not None:
         resumes = int(previous.data.tags.get("resumes", "0")) + 1
         run = mlflow.start_run(run_id=previous.info.run_id, nested=nested or parent_run_id is not None)
@@ -188,7 +218,8 @@ def start_run(
                 mlflow.set_tags({**_git_tags(), "resumes": str(resumes)})
                 mlflow.log_text(config_text, f"config_resume{resumes}.yaml")
             else:
-                mlflow.log_params(flatten_params(resolved_dict(cfg)))
+                params = flatten_params(resolved_dict(cfg))
+                mlflow.log_params({**{k: params[k] for k in point if k in params}, **params})
                 mlflow.log_text(config_text, "config.yaml")
             yield run
     except KeyboardInterrupt:
