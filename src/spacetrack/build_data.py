@@ -18,13 +18,13 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict
 from pathlib import Path
 
-import hydra
 import mlflow
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from spacetrack.config import CONF_DIR, resolved_dict
+from spacetrack import cli
+from spacetrack.config import resolved_dict
 from spacetrack.data import card
 from spacetrack.data.folds import assign_folds
 from spacetrack.data.geometry import CLASS_NAMES
@@ -214,10 +214,10 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return {k: float(v) for k, v in stats.items() if isinstance(v, (int, float))}
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="build_data")
-def main(cfg: DictConfig) -> None:
+@cli.entry_point("build_data", files="out_dir")
+def main(cfg: DictConfig) -> dict[str, float]:
     stats = run(cfg)
-    print(f"wrote {cfg.out_dir}: " + ", ".join(f"{k}={v:g}" for k, v in stats.items()))
+    return {k: stats[k] for k in ("sequences", "frames", "moving_targets", "static_objects")}
 
 
 if __name__ == "__main__":

@@ -11,13 +11,12 @@ import shutil
 from pathlib import Path
 
 import cv2
-import hydra
 import mlflow
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from spacetrack import build_data, track
-from spacetrack.config import CONF_DIR, compose_config
+from spacetrack import build_data, cli, track
+from spacetrack.config import compose_config
 from spacetrack.data.layout import MANIFEST, frame_name, frame_paths, load_manifest, read_mot
 from spacetrack.mlflow_log import start_run
 from spacetrack.viz.draw import draw_boxes, draw_trails
@@ -116,9 +115,10 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return result
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="demo")
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+@cli.entry_point("demo", files="demo_dir")
+def main(cfg: DictConfig) -> dict[str, float]:
+    result = run(cfg)
+    return {k: result[k] for k in ("sequences", "mota", "idf1", "idsw") if k in result}
 
 
 if __name__ == "__main__":

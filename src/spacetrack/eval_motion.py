@@ -17,12 +17,12 @@ import logging
 from pathlib import Path
 
 import cv2
-import hydra
 import numpy as np
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from spacetrack.config import CONF_DIR, resolved_dict
+from spacetrack import cli
+from spacetrack.config import resolved_dict
 from spacetrack.data.layout import frame_paths, load_manifest, read_mot
 from spacetrack.io import atomic_path, atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
@@ -264,9 +264,14 @@ def write_sheet(path: Path, tiles: list[tuple[str, np.ndarray]], title: str) -> 
         tmp.write_bytes(data.tobytes())
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="eval_motion")
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+@cli.entry_point("eval_motion", files="output_dir")
+def main(cfg: DictConfig) -> dict[str, float]:
+    metrics = run(cfg)
+    return {
+        f"{k.split('.')[1]} pixel_f1": v
+        for k, v in metrics.items()
+        if k.startswith("overall.") and k.endswith(".pixel_f1")
+    }
 
 
 if __name__ == "__main__":

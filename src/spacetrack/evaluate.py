@@ -5,10 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
-from spacetrack.config import CONF_DIR
+from spacetrack import cli
 from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
 from spacetrack.evaluation.table import format_table
 from spacetrack.io import atomic_write_text
@@ -30,9 +29,10 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return scores[OVERALL]
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="evaluate")
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+@cli.entry_point("evaluate", files="output_json")
+def main(cfg: DictConfig) -> dict[str, float]:
+    scores = run(cfg)
+    return {k: scores[k] for k in ("mota", "idf1", "idsw") if k in scores}
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from spacetrack.config import CONF_DIR
+from spacetrack import cli
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
 from spacetrack.io import atomic_write_text
@@ -165,7 +165,7 @@ def _brief(metrics: dict[str, float]) -> str:
     return ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if "/" not in k)
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="track")
+@cli.entry_point("track", metric="mota", files="output_dir")
 def main(cfg: DictConfig) -> float:
     """Returns MOTA (what a sweeper maximises); NaN when the sources have no ground truth."""
     return run(cfg).get("mota", float("nan"))

@@ -9,12 +9,11 @@ import logging
 import time
 from pathlib import Path
 
-import hydra
 import numpy as np
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from spacetrack.config import CONF_DIR
+from spacetrack import cli
 from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.tracking import track_sequence
@@ -71,9 +70,10 @@ def rows_as_mot(rows: np.ndarray) -> np.ndarray:
     return np.hstack([np.asarray(rows, dtype=float).reshape(-1, 6), tail])
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="track_detections")
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+@cli.entry_point("track_detections", files="output")
+def main(cfg: DictConfig) -> dict[str, float]:
+    metrics = run(cfg)
+    return {k: metrics[k] for k in ("mota", "idf1", "num_tracks", "ms_per_frame") if k in metrics}
 
 
 if __name__ == "__main__":
