@@ -31,7 +31,7 @@ from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.io import atomic_write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import markdown_table, summarize, write_report  # noqa: E402
+from common import markdown_table, progress, summarize, write_report  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 PEER = "mog2"
@@ -101,7 +101,7 @@ def time_interleaved(
         if hasattr(detector, "flush"):
             detector.flush()
         cursor[name] = 10
-    for _ in range(rounds):
+    for _ in progress(rounds, ", ".join(detectors), unit="round"):
         for name, detector in detectors.items():
             for _ in range(block):
                 frame = feeds[name][cursor[name] % len(frames)]

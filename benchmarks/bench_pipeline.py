@@ -30,7 +30,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from common import markdown_table, write_report
+from common import markdown_table, progress, write_report
 from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
@@ -172,7 +172,7 @@ def main() -> None:
     samples: dict[str, list[float]] = {name: [] for name in contenders}
     stages: dict[str, list[dict]] = {name: [] for name in contenders}
     cache_samples: list[float] = []
-    for _ in range(args.rounds):
+    for _ in progress(args.rounds, "pipeline contenders", unit="round"):
         for name, s in contenders.items():
             seconds, by_stage = one_pass(s, frames, args.sequence, cfg.tracker)
             samples[name].append(seconds)

@@ -149,8 +149,18 @@ def measure(folder: Path, targets: list[int], num_frames: int, repeats: int) -> 
         det_path, gt_path = write_synthetic_files(folder, num_targets, num_frames)
         frames = frames_from_file(det_path)
         inputs = peer_inputs(frames)
-        ours = summarize(time_call(lambda f=frames: run_ours(f), repeats=repeats, warmup=1), per_frame)
-        peer = summarize(time_call(lambda i=inputs: run_peer(i), repeats=repeats, warmup=1), per_frame)
+        ours = summarize(
+            time_call(
+                lambda f=frames: run_ours(f), repeats=repeats, warmup=1, desc=f"ours, {num_targets} targets"
+            ),
+            per_frame,
+        )
+        peer = summarize(
+            time_call(
+                lambda i=inputs: run_peer(i), repeats=repeats, warmup=1, desc=f"peer, {num_targets} targets"
+            ),
+            per_frame,
+        )
         tracks = run_ours(frames)
         agree = agreement(tracks, run_peer(inputs))
         mota = score(tracks, read_mot_file(gt_path))

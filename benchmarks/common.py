@@ -2,7 +2,8 @@
 
 Each benchmark times its contenders in the same process and run, reports medians and spreads (this
 machine is noisy), the ratio of each contender to the peer, and writes `reports/<name>.json` plus a
-markdown table `reports/<name>.md`.
+markdown table `reports/<name>.md`. The timed loops show a bar with the rate and the time left (on stderr,
+updated between timed calls, never inside one).
 """
 
 from __future__ import annotations
@@ -17,15 +18,24 @@ from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 
+from tqdm import tqdm
+
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 
 
-def time_call(fn: Callable[[], object], *, repeats: int, warmup: int = 3) -> list[float]:
+def progress(total: int, desc: str, unit: str = "call") -> tqdm:
+    """A bar over a benchmark's timed loop; it disappears when done, so the tables stay readable."""
+    return tqdm(range(total), desc=desc[:40], unit=unit, leave=False, dynamic_ncols=True)
+
+
+def time_call(
+    fn: Callable[[], object], *, repeats: int, warmup: int = 3, desc: str = "timing"
+) -> list[float]:
     """Wall-clock seconds of `repeats` calls of `fn` after `warmup` untimed calls."""
     for _ in range(warmup):
         fn()
     samples = []
-    for _ in range(repeats):
+    for _ in progress(repeats, desc) if repeats > 1 else range(repeats):
         t0 = time.perf_counter()
         fn()
         samples.append(time.perf_counter() - t0)
@@ -42,7 +52,7 @@ def interleaved_samples(
         time_call(call, repeats=0, warmup=3)
     wall: dict[str, list[float]] = {name: [] for name in calls}
     cpu: dict[str, list[float]] = {name: [] for name in calls}
-    for _ in range(repeats):
+    for _ in progress(repeats, ", ".join(calls), unit="round"):
         for name, call in calls.items():
             t0 = time.process_time()
             wall[name] += time_call(call, repeats=1, warmup=0)
