@@ -38,9 +38,10 @@ test: $(STAMP) ## run the test suite
 data: $(STAMP) ## render the default dataset into data/ (override keys with ARGS="data=smoke seed=3")
 	$(PY) -m spacetrack.build_data $(ARGS)
 
-ui: $(STAMP) ## serve the MLflow UI on the project's tracking store (http://127.0.0.1:5000, PORT=... to change)
+ui: $(STAMP) ## serve the MLflow UI on the project's store (http://127.0.0.1:5000, PORT=... to change); links each experiment's runs table
+	@echo "runs table of each experiment, once the server is up:"; $(PY) -m spacetrack.mlflow_ui
 	@case "$${MLFLOW_TRACKING_URI:-}" in http*) \
-		echo "MLFLOW_TRACKING_URI=$$MLFLOW_TRACKING_URI is a server: open it in a browser"; exit 0;; esac; \
+		echo "MLFLOW_TRACKING_URI=$$MLFLOW_TRACKING_URI is a server: open the links above"; exit 0;; esac; \
 	$(VENV)/bin/mlflow ui --backend-store-uri $${MLFLOW_TRACKING_URI:-sqlite:///mlflow.db} \
 		--host 127.0.0.1 --port $${PORT:-5000} --workers 1
 
