@@ -9,10 +9,10 @@ ARGS ?=
 .DEFAULT_GOAL := help
 .PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
 .PHONY: track-detections evaluate bench-tracker
-.PHONY: train cv bench-detector
+.PHONY: train cv bench-detector pretrain detector-cv bench-train
 .PHONY: eval-motion bench-motion
 .PHONY: train-reid cv-reid bench-reid
-.PHONY: track track-cv sweep bench-pipeline table4
+.PHONY: track track-cv sweep bench-pipeline table4 slew-data score-breakdown
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -74,6 +74,23 @@ $(DEFAULT_DATA)/manifest.json: | $(STAMP)
 train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on FOLD (default 3), train on the rest; ARGS="model=yolov5s_gam enhance=dwt_hsv"
 	$(PY) -m spacetrack.train fold=$(FOLD) $(ARGS)
 
+PRETRAIN_DATA := data/space_pretrain
+
+$(PRETRAIN_DATA)/manifest.json: | $(STAMP)
+	$(PY) -m spacetrack.build_data data=pretrain seed=1000
+
+pretrain: $(STAMP) $(PRETRAIN_DATA)/manifest.json ## pretrain YOLOv5s and YOLOv5s+GAM (DWT/HSV) side by side, one core each -> weights/*_pretrained.pt; resumable
+	@mkdir -p outputs/pretrain
+	$(PY) -m spacetrack.pretrain train.threads=1 $(ARGS) > outputs/pretrain/yolov5s.log 2>&1 & plain=$$!; \
+	$(PY) -m spacetrack.pretrain model=yolov5s_gam enhance=dwt_hsv train.threads=1 $(ARGS) \
+		> outputs/pretrain/yolov5s_gam.log 2>&1 & gam=$$!; \
+	echo "pretraining both models; progress in outputs/pretrain/yolov5s.log and yolov5s_gam.log"; \
+	wait $$plain; a=$$?; wait $$gam; b=$$?; tail -n 2 outputs/pretrain/yolov5s.log outputs/pretrain/yolov5s_gam.log; \
+	test $$a -eq 0 -a $$b -eq 0
+
+detector-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## per-fold detector results, plain and improved, per scenario -> experiments/detector_cv (FOLDS="3 4")
+	$(PY) experiments/detector_cv/run.py --folds $(or $(FOLDS),0 1 2 3 4 5 6 7 8) -- $(ARGS)
+
 cv: ## the whole nine-fold study: cv-detector, cv-reid, then track-cv (DETECTOR_ARGS, REID_ARGS, TRACK_ARGS)
 	$(MAKE) cv-detector ARGS="$(DETECTOR_ARGS)"
 	$(MAKE) cv-reid ARGS="$(REID_ARGS)"
@@ -81,6 +98,9 @@ cv: ## the whole nine-fold study: cv-detector, cv-reid, then track-cv (DETECTOR_
 
 cv-detector: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the detector (Hydra multirun, one MLflow parent run)
 	$(PY) -m spacetrack.train -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
+
+bench-train: $(STAMP) ## detector training img/s: float32 against bfloat16, cached crops against per-sample decoding -> reports/train.json
+	$(PY) benchmarks/bench_train.py $(ARGS)
 
 bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 (torch and ONNX Runtime, 1 and 2 threads) and training images/s -> reports/detector.json
 	$(PY) benchmarks/bench_detector.py $(ARGS)
@@ -119,10 +139,21 @@ sweep: $(STAMP) $(DEFAULT_DATA)/manifest.json ## sweep the tracker gates on FOLD
 bench-pipeline: $(STAMP) ## time the whole pipeline per 640x480 frame, stage by stage -> reports/pipeline.json
 	$(PY) benchmarks/bench_pipeline.py $(ARGS)
 
+SLEW_DATA := data/slew
+
+$(SLEW_DATA)/manifest.json: | $(STAMP)
+	$(PY) -m spacetrack.build_data 'data/scenario=[slew]' data.name=slew seed=5 data.num_sequences=4 data.num_folds=2
+
+slew-data: $(SLEW_DATA)/manifest.json ## a slewing-camera render with parked objects (seed 5, 4 sequences) -> data/slew
+
+score-breakdown: $(STAMP) ## FN/FP by cause per scenario of a Table 4 row's tracks -> experiments/score_breakdown (ROW=gt_deepsort_original)
+	$(PY) experiments/score_breakdown/run.py --results outputs/table4/$(or $(ROW),gt_deepsort_original) \
+		--name $(or $(ROW),gt_deepsort_original)
+
 table4: $(STAMP) $(DEFAULT_DATA)/manifest.json ## Table 4 (MOTA per fold and row), resumable per fold and row -> experiments/table4_mota
 	$(PY) experiments/table4_mota/run.py $(ARGS)
 
-bench: bench-enhance bench-tracker bench-detector bench-motion bench-reid bench-pipeline ## run every benchmark
+bench: bench-enhance bench-tracker bench-train bench-detector bench-motion bench-reid bench-pipeline ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun

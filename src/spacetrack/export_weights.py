@@ -3,7 +3,7 @@ both networks as float32 ONNX graphs for ONNX Runtime elsewhere.
 
     python -m spacetrack.export_weights --detector outputs/train/<run>/weights/best.pt \\
         --reid outputs/train_reid/space_default/fold3/reid.pt --out weights/
-    python -m spacetrack.export_weights --onnx --image-size 320 --detector weights/detector_yolov5s_fold3.pt \\
+    python -m spacetrack.export_weights --onnx --image-size 640x480 --detector weights/detector_yolov5s_fold3.pt \\
         --reid weights/reid_fold3.pt --out outputs/
 
 The detector file keeps what `spacetrack.engine.checkpoint.load_detector` needs (`arch`, `ema`) plus the
@@ -11,7 +11,8 @@ training settings and history; optimiser state and the raw weights are dropped. 
 fp16 tensors back to the model's float32 on load.
 
 The ONNX graphs are the ones the pipeline's `backend=onnxruntime` runs: the detector takes one
-(1, 3, S, S) float32 RGB image in [0, 1] (letterboxed to S = --image-size) and gives (1, N, 5 + classes)
+(1, 3, H, W) float32 RGB image in [0, 1] (--image-size WxH: a native frame padded to multiples of 32;
+or S: letterboxed to S x S) and gives (1, N, 5 + classes)
 rows `cx, cy, w, h` in pixels, objectness and class scores, before NMS; the re-ID network takes
 (N, 3, 128, 64) crops in [0, 1] and gives (N, 128) unit features.
 """
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import torch
 
+from spacetrack import cli
 from spacetrack.engine.checkpoint import load_checkpoint, load_detector
 from spacetrack.io import atomic_path, load_torch_file
 from spacetrack.onnx_backend import export_onnx
@@ -53,10 +55,22 @@ def export_reid(src: str | Path, dst: str | Path) -> Path:
     return Path(dst)
 
 
-def export_detector_onnx(src: str | Path, dst: str | Path, *, image_size: int = 320) -> Path:
-    if image_size % 32:
-        raise ValueError(f"--image-size must be a multiple of 32 pixels, got {image_size}")
-    return export_onnx(*onnx_graph(load_detector(src), image_size), dst)
+def input_size(text: str) -> tuple[int, int]:
+    """(height, width) of `--image-size`: `WxH` or a square side `S`, each a multiple of 32."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x")) if "x" in text.lower() else (int(text),) * 2
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--image-size must be WxH or S in pixels, got {text!r}") from None
+    if width <= 0 or height <= 0 or width % 32 or height % 32:
+        raise argparse.ArgumentTypeError(f"--image-size sides must be positive multiples of 32, got {text!r}")
+    return height, width
+
+
+def export_detector_onnx(
+    src: str | Path, dst: str | Path, *, image_size: tuple[int, int] = (480, 640)
+) -> Path:
+    """The detector's ONNX graph for (height, width) inputs."""
+    return export_onnx(*onnx_graph(load_detector(src), *image_size), dst)
 
 
 def export_reid_onnx(src: str | Path, dst: str | Path) -> Path:
@@ -71,20 +85,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, required=True, help="folder for the fp16 files (must exist)")
     parser.add_argument("--suffix", default="fold3", help="name suffix, e.g. the validation fold")
     parser.add_argument("--onnx", action="store_true", help="write float32 ONNX graphs instead of fp16 .pt")
-    parser.add_argument("--image-size", type=int, default=320, help="detector ONNX input side, pixels")
+    parser.add_argument(
+        "--image-size", type=input_size, default="640x480", help="detector ONNX input WxH (or S), pixels"
+    )
     args = parser.parse_args(argv)
     written = []
     if args.detector and args.onnx:
-        name = f"detector_yolov5s_{args.suffix}_{args.image_size}px.onnx"
+        name = f"detector_yolov5s_{args.suffix}_{args.image_size[1]}x{args.image_size[0]}.onnx"
         written.append(export_detector_onnx(args.detector, args.out / name, image_size=args.image_size))
     elif args.detector:
         written.append(export_detector(args.detector, args.out / f"detector_yolov5s_{args.suffix}.pt"))
     if args.reid:
         name = f"reid_{args.suffix}.{'onnx' if args.onnx else 'pt'}"
         written.append((export_reid_onnx if args.onnx else export_reid)(args.reid, args.out / name))
-    for path in written:
-        print(f"{path}: {path.stat().st_size / 1e6:.1f} MB")
+    sizes = ", ".join(f"{path.name} {path.stat().st_size / 1e6:.1f} MB" for path in written)
+    cli.print_summary(
+        "export_weights", sizes or "nothing to export (give --detector or --reid)", args.out, None
+    )
 
 
 if __name__ == "__main__":
-    main()
+    cli.report_errors(main)

@@ -11,10 +11,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
-from spacetrack.config import CONF_DIR
+from spacetrack import cli
 from spacetrack.data.layout import load_manifest
 from spacetrack.engine.pretrained import PRETRAINED
 from spacetrack.export_weights import export_detector
@@ -69,7 +68,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return result["metrics"]
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="pretrain")
+@cli.entry_point("pretrain", metric="fitness", files="export_dir")
 def main(cfg: DictConfig) -> float:
     return run(cfg)["fitness"]
 

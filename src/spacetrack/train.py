@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from spacetrack.config import CONF_DIR, resolved_dict
+from spacetrack import cli
+from spacetrack.config import resolved_dict
 from spacetrack.data.crops import CropDataset
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
@@ -166,7 +166,7 @@ def fit(cfg: DictConfig) -> dict:
     return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id}
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="train")
+@cli.entry_point("train", metric="fitness", files="out_dir")
 def main(cfg: DictConfig) -> float:
     return run(cfg)["fitness"]
 

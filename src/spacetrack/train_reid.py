@@ -7,10 +7,9 @@ python -m spacetrack.train_reid train_reid=smoke data=smoke logger=none
 
 from __future__ import annotations
 
-import hydra
 from omegaconf import DictConfig
 
-from spacetrack.config import CONF_DIR
+from spacetrack import cli
 from spacetrack.reid.pipeline import train_fold
 
 
@@ -19,7 +18,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return train_fold(cfg, int(cfg.fold), parent_run_id=cfg.cv_parent_run_id)
 
 
-@hydra.main(version_base=None, config_path=str(CONF_DIR), config_name="train_reid")
+@cli.entry_point("train_reid", metric="rank1", files="output_dir")
 def main(cfg: DictConfig) -> float:
     return run(cfg)["rank1"]
 
