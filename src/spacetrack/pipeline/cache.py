@@ -2,7 +2,7 @@
 at will.
 
 Per sequence, two parts, each valid only with its sidecar, which is written last:
-- what the networks made: `<folder>/<name>.npy` holds the detections in the DESIGN.md layout, an
+- what the networks made: `<folder>/<name>.npy` holds the detections in the reference DeepSORT layout (`frame,-1,x,y,w,h,confidence,-1,-1,-1` + features), an
   (N, 10 + D) float array `frame,-1,x,y,w,h,confidence,-1,-1,-1` + D-dim re-ID feature (so `python -m
   spacetrack.track_detections` runs on it alone), `<name>.classes.npy` (N,) each row's class, and
   `<name>.json` names the detector (weights hash and settings), re-ID weights, enhancement, source and

@@ -33,7 +33,7 @@ HEAD_COLUMNS = 10  # frame,-1,x,y,w,h,confidence,-1,-1,-1 before the appearance 
 
 @dataclass
 class FrameDetections:
-    """One frame's detections: `rows` in the DESIGN.md layout (N, 10 + D), `dynamic` (N,) bool, `classes`
+    """One frame's detections: `rows` in the reference DeepSORT layout (N, 10 + D: `frame,-1,x,y,w,h,confidence,-1,-1,-1`, features), `dynamic` (N,) bool, `classes`
     (N,) class indices, the RGB `image` when the stream keeps images (for drawing), and the moving `blobs`
     the dynamic flags came from (None without a motion stage)."""
 
@@ -46,7 +46,7 @@ class FrameDetections:
 
 
 def dynamic_flags(dynamic_filter: DynamicFilter, rows: np.ndarray, blobs: list[Blob] | None) -> np.ndarray:
-    """(N,) bool: which detection rows (DESIGN layout) move by `blobs`; all of them with no motion stage."""
+    """(N,) bool: which detection rows (the DeepSORT layout) move by `blobs`; all of them with no motion stage."""
     return np.ones(len(rows), bool) if blobs is None else dynamic_filter(rows[:, 2:6], blobs)
 
 
