@@ -103,22 +103,24 @@ def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     return None
 
 
-def variant_config(slug: str, fold: int, overrides: list[str]):
-    """The `train` config of one variant and fold, its run folder under outputs/detector_cv."""
+def variant_config(slug: str, fold: int, overrides: list[str], out: Path = HERE):
+    """The `train` config of one variant and fold. Its run folder is outputs/detector_cv/<slug>_fold<k>,
+    or outputs/detector_cv/<out's name>/<slug>_fold<k> for results written elsewhere than here."""
+    runs = Path("outputs/detector_cv") / ("" if out.resolve() == HERE else out.name)
     cfg = compose_config(
         "train",
-        [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", "resume_dirs=[outputs/detector_cv]",
-         f"out_dir=outputs/detector_cv/{slug}_fold{fold}", *overrides],
+        [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", f"resume_dirs=[{runs}]",
+         f"out_dir={runs / f'{slug}_fold{fold}'}", *overrides],
     )  # fmt: skip
     with open_dict(cfg):
         cfg.cv_parent_run_id = None
     return cfg
 
 
-def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, configs: Path) -> dict:
+def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Path) -> dict:
     """Train (or reuse) one variant on one fold and score it."""
-    cfg = variant_config(slug, fold, overrides)
-    atomic_write_text(configs / f"{slug}_fold{fold}.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    cfg = variant_config(slug, fold, overrides, out)
+    atomic_write_text(out / "configs" / f"{slug}_fold{fold}.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     found = matching_run(cfg)
     if found is None:
         fit(cfg)
@@ -206,7 +208,7 @@ def main() -> None:
             if path.is_file():
                 continue
             result = {"slug": slug, "variant": VARIANTS[slug][0], "fold": fold, "overrides": args.overrides,
-                      **piece(slug, fold, args.overrides, args.frame_stride, args.out / "configs")}  # fmt: skip
+                      **piece(slug, fold, args.overrides, args.frame_stride, args.out)}  # fmt: skip
             atomic_write_text(path, json.dumps(result, indent=2) + "\n")
             write_tables(args.out)
             print(
