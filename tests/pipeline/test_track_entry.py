@@ -46,7 +46,7 @@ def test_pipeline_writes_results_video_metrics_and_cache(smoke_dataset, random_r
     assert {"detector_ms", "reid_ms", "motion_ms", "tracker_ms"} <= set(metrics)
     # The filter keeps the parked satellite away from the tracker.
     assert _static_overlap(out / f"{STATIC_SEQ}.txt", smoke_dataset / STATIC_SEQ / "gt" / "static.txt") == 0
-    # The cache is the DESIGN layout with 128-dim features, readable by the standalone tracker.
+    # The cache holds detection rows (docs/contracts.md), 128-dim features, readable by track_detections.
     cache_dir = next((tmp_path / "cache").iterdir())
     dets = load_detections(cache_dir / f"{STATIC_SEQ}.npy")
     assert dets.shape[1] == 10 + 128

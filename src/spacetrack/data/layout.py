@@ -1,4 +1,4 @@
-"""Reading the on-disk dataset layout (see the README's "Dataset format").
+"""Reading the on-disk dataset layout (described in docs/contracts.md, "Dataset layout").
 
 A dataset root holds `manifest.json` and one folder per sequence with `img/`, `gt/gt.txt`,
 `gt/static.txt`, `labels/`, `masks/` and `seqinfo.ini`. Frame numbers are 1-based everywhere.
