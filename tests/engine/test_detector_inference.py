@@ -28,3 +28,10 @@ def test_boxes_are_clipped_to_the_frame():
     frame = np.zeros((480, 640, 3), dtype=np.uint8)
     (det,) = detect(FixedBox((5, 45, 20, 20)), [frame, frame], image_size=320)[:1]
     assert det[0, :4].tolist() == [0.0, 0.0, 30.0, 30.0]
+
+
+def test_boxes_left_with_no_area_are_dropped():
+    frame = np.zeros((480, 640, 3), dtype=np.uint8)
+    # Wholly in the top padding (rows 0-40 of the letterbox): clipped to the frame it has no height.
+    (det,) = detect(FixedBox((110, 10, 20, 10)), [frame], image_size=320)
+    assert det.shape == (0, 6)

@@ -15,8 +15,7 @@ from torch import nn
 
 from spacetrack.data.layout import read_mot
 from spacetrack.engine.checkpoint import load_detector
-from spacetrack.engine.inference import network_input, to_frame_boxes
-from spacetrack.engine.nms import non_max_suppression
+from spacetrack.engine.inference import check_image_size, frame_detections, network_input
 from spacetrack.io import file_hash
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.onnx_backend import MethodModule, check_backend, onnx_session
@@ -68,10 +67,7 @@ class YoloDetector:
         threads: int = 0,
         onnx_dir: str | Path | None = None,
     ) -> None:
-        if image_size is not None and image_size % 32:
-            raise ValueError(
-                f"image_size must be a multiple of 32 pixels (or null: native), got {image_size}"
-            )
+        check_image_size(image_size)
         self.device = resolve_device(device)
         self.backend = check_backend(backend, self.device.type)
         self.model = load_detector(weights)
@@ -108,14 +104,15 @@ class YoloDetector:
 
     @torch.no_grad()
     def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
-        boxed, scale, pad = network_input(rgb, self.image_size)
-        (det,) = non_max_suppression(
-            self.predict(boxed),
+        prepared = network_input(rgb, self.image_size)
+        (det,) = frame_detections(
+            self.predict(prepared[0]),
+            [prepared],
+            [rgb.shape],
             conf_threshold=self.conf_threshold,
             iou_threshold=self.iou_threshold,
             max_det=self.max_det,
         )
-        det = to_frame_boxes(det.cpu().numpy(), scale, pad, rgb.shape)
         return np.column_stack([det[:, :2], det[:, 2:4] - det[:, :2], det[:, 4:6]])
 
 
