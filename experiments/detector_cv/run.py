@@ -32,6 +32,7 @@ from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
 from spacetrack.engine.checkpoint import load_detector
+from spacetrack.engine.metrics import detection_metrics
 from spacetrack.engine.validate import evaluate
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import artifact_file, flatten_params, tracking_uri
@@ -61,18 +62,23 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
     image_dir, on_the_fly = image_source(root, val_names, enhancer.name)
     store = FrameStore(root=root, image_dir=image_dir, enhancer=enhancer if on_the_fly else None,
                        enhancer_name=enhancer.name)  # fmt: skip
-    groups = {"all": val_names} | {
+    groups = {
         name: [v for v in val_names if scenario[v] == name]
         for name in sorted({scenario[v] for v in val_names})
     }
-    out = {}
+    out, pooled, frames = {}, [], 0
     for group, names in groups.items():
         data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
                            store=store, frame_stride=frame_stride)  # fmt: skip
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
-        metrics, _ = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
-                              iou_threshold=0.6, max_det=300)  # fmt: skip
+        metrics, details = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
+                                    iou_threshold=0.6, max_det=300)  # fmt: skip
         out[group] = {k: metrics[k] for k in METRICS} | {"frames": len(data)}
+        pooled.append(details["matches"])
+        frames += len(data)
+    # "all": the scenarios' matches pooled, one mAP over every frame (not a mean of the scenarios')
+    result = detection_metrics(*(np.concatenate(a) for a in zip(*pooled, strict=True)))
+    out = {"all": {k: float(result[k]) for k in METRICS} | {"frames": frames}} | out
     return out
 
 

@@ -29,7 +29,9 @@ def evaluate(
     metrics: `map50`, `map50_95`, `precision`, `recall`, `recall_at_score` (recall at score >= 0.5, see
     `detection_metrics`) and, with `loss_fn`, `val_box`, `val_obj`,
     `val_cls` (per image). details: `pr_curves` and `examples` (the first batch's images with their
-    detections and ground truth, `xyxy` pixels of the letterboxed input) for plots.
+    detections and ground truth, `xyxy` pixels of the letterboxed input) for plots, and `matches`, the
+    arrays `detection_metrics` took (true-positive flags, scores, predicted and true classes), so that
+    the metrics of several loaders can be pooled.
     """
     model.eval()
     tps, scores, pred_classes, gt_classes = [], [], [], []
@@ -63,10 +65,9 @@ def evaluate(
         if not examples:
             examples = {"images": images.numpy(), "detections": batch_dets, "ground_truth": batch_gts}
         num_images += len(x)
-    result = detection_metrics(
-        np.concatenate(tps), np.concatenate(scores), np.concatenate(pred_classes), np.concatenate(gt_classes)
-    )
+    matches = tuple(np.concatenate(a) for a in (tps, scores, pred_classes, gt_classes))
+    result = detection_metrics(*matches)
     metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall", "recall_at_score")}
     if loss_fn is not None:
         metrics.update(zip(("val_box", "val_obj", "val_cls"), (losses / num_images).tolist(), strict=True))
-    return metrics, {"pr_curves": result["pr_curves"], "examples": examples}
+    return metrics, {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches}
