@@ -32,11 +32,11 @@ from omegaconf import OmegaConf
 
 from common import markdown_table, progress, write_report
 from spacetrack.config import REPO_ROOT, compose_config
+from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import DetectionStream, GroundTruthDetector, StageTimer, YoloDetector
 from spacetrack.pipeline.cache import CachedSequence
-from spacetrack.pipeline.detector import resolve_device
 from spacetrack.pipeline.runner import cached_frames
 from spacetrack.pipeline.sources import FrameSource, sequence_source
 from spacetrack.reid import Encoder

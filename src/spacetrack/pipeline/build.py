@@ -14,10 +14,10 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from spacetrack.config import resolved_dict
+from spacetrack.device import resolve_device
 from spacetrack.io import file_hash
 from spacetrack.onnx_backend import check_backend
 from spacetrack.pipeline.cache import CacheKey, config_hash
-from spacetrack.pipeline.detector import resolve_device
 from spacetrack.pipeline.sources import FrameSource
 from spacetrack.pipeline.stages import DetectionStream
 from spacetrack.pipeline.timing import StageTimer

@@ -14,19 +14,13 @@ import torch
 from torch import nn
 
 from spacetrack.data.layout import read_mot
+from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import check_image_size, frame_detections, network_input
 from spacetrack.io import file_hash
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.onnx_backend import MethodModule, check_backend, onnx_session
 from spacetrack.pipeline.sources import FrameSource
-
-
-def resolve_device(name: str) -> torch.device:
-    """ "auto" -> CUDA when present, else the CPU; anything else as torch names it."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def onnx_graph(model: YOLOv5, height: int, width: int | None = None) -> tuple[nn.Module, tuple[int, ...]]:

@@ -7,15 +7,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from spacetrack.device import resolve_device
 from spacetrack.onnx_backend import check_backend, onnx_session
 from spacetrack.reid.crops import Cropper, check_boxes, check_frame, frame_tensor
 from spacetrack.reid.network import ReidNet
 
 WEIGHTS_ARTIFACT = "weights/reid.pt"
-
-
-def default_device() -> torch.device:
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
 def onnx_input_shape(net: ReidNet) -> tuple[int, int, int, int]:
@@ -26,7 +23,7 @@ def onnx_input_shape(net: ReidNet) -> tuple[int, int, int, int]:
 
 class Encoder:
     """`encoder(frame_rgb, boxes_tlwh)` -> (N, feature_dim) float32 unit vectors, one per box; no box gives
-    (0, feature_dim). Crops are cut and encoded in batches of `batch_size` on `device`.
+    (0, feature_dim). Crops are cut and encoded in batches of `batch_size` on `device` ("auto": CUDA when present).
 
     A box partly outside the frame is encoded with black beyond the border (see `Cropper`); a box wholly
     outside shows nothing of the target, so its row is all zeros: cosine distance 1 to every feature, it can
@@ -43,7 +40,7 @@ class Encoder:
         net: ReidNet,
         cropper: Cropper,
         *,
-        device: str | torch.device | None = None,
+        device: str | torch.device = "auto",
         batch_size: int = 64,
         backend: str = "torch",
         threads: int = 0,
@@ -56,7 +53,7 @@ class Encoder:
                 f"cropper makes {cropper.height}x{cropper.width} crops, the network takes "
                 f"{net.input_height}x{net.input_width}"
             )
-        self.device = torch.device(device) if device is not None else default_device()
+        self.device = resolve_device(device)
         self.backend = check_backend(backend, self.device.type)
         self.net = net.eval()
         self.session = None

@@ -19,13 +19,14 @@ from torch.utils.data import DataLoader
 
 from spacetrack.config import resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import differences, save_checkpoint
 from spacetrack.engine.trainer import autocast_dtype
 from spacetrack.io import atomic_write_text, load_torch_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.reid.crops import Cropper
 from spacetrack.reid.dataset import CropDataset, collect_crops, cut_crops, jitter_augment
-from spacetrack.reid.encoder import Encoder, default_device
+from spacetrack.reid.encoder import Encoder
 from spacetrack.reid.evaluation import evaluate_features, plot_distances
 from spacetrack.reid.loss import CosineSoftmax
 from spacetrack.reid.train import fit
@@ -34,10 +35,6 @@ from spacetrack.reid.weights import save_weights
 # Settings that may differ on resume: they change the speed, not the numbers.
 RESUME_NEUTRAL = ("threads", "workers")
 CHECKPOINT_FORMAT = "spacetrack-reid-train-1"
-
-
-def _device(name: str) -> torch.device:
-    return default_device() if name == "auto" else torch.device(name)
 
 
 def training_settings(cfg: DictConfig, fold: int) -> dict:
@@ -68,7 +65,7 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
     torch.manual_seed(t.seed)
     if t.threads:
         torch.set_num_threads(t.threads)
-    device = _device(t.device)
+    device = resolve_device(t.device)
     cropper: Cropper = instantiate(cfg.model.crop)
     net = instantiate(cfg.model.net)
     select = dict(min_visibility=t.min_visibility, min_box_size=t.min_box_size)
