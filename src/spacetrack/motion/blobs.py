@@ -45,18 +45,6 @@ def find_blobs(mask: np.ndarray, *, min_area: float = 0.0) -> list[Blob]:
     return blobs
 
 
-def intersections(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N, M) intersection areas of boxes a and b (tlwh pixels), with the (N,) and (M,) box areas."""
-    a = np.asarray(a_tlwh, dtype=np.float64).reshape(-1, 4)
-    b = np.asarray(b_tlwh, dtype=np.float64).reshape(-1, 4)
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 0] + a[:, None, 2], b[None, :, 0] + b[None, :, 2])
-    y2 = np.minimum(a[:, None, 1] + a[:, None, 3], b[None, :, 1] + b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    return inter, a[:, 2] * a[:, 3], b[:, 2] * b[:, 3]
-
-
 def blob_boxes(blobs: list[Blob]) -> np.ndarray:
     """(N, 4) float64 array of the blobs' boxes in tlwh pixels."""
     return np.array([b.tlwh for b in blobs], dtype=np.float64).reshape(-1, 4)

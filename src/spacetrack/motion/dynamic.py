@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacetrack.motion.blobs import Blob, blob_boxes, intersections
-from spacetrack.tracking.iou_matching import iou_matrix
+from spacetrack.motion.blobs import Blob, blob_boxes
+from spacetrack.tracking.iou_matching import intersections, iou_matrix
 
 
 def coverage(a_tlwh: np.ndarray, b_tlwh: np.ndarray) -> np.ndarray:

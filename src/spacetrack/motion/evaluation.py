@@ -18,15 +18,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from spacetrack.motion.blobs import blob_boxes, find_blobs, intersections
+from spacetrack.motion.blobs import blob_boxes, find_blobs
 from spacetrack.motion.dynamic import DynamicFilter
-
-
-def iou_tlwh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, M) intersection over union of boxes in tlwh pixels (0 where both are empty)."""
-    inter, area_a, area_b = intersections(a, b)
-    union = area_a[:, None] + area_b[None, :] - inter
-    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+from spacetrack.tracking.iou_matching import iou_matrix
 
 
 def ratio(num: float, den: float) -> float:
@@ -97,7 +91,7 @@ class MotionScore:
         self.lit_fp += int(np.count_nonzero(false))
         self.lit_fn += int(np.count_nonzero(miss & seen))
         blobs = find_blobs(pred.astype(np.uint8), min_area=min_blob_area)
-        match = iou_tlwh(target_boxes, blob_boxes(blobs)) >= blob_iou
+        match = iou_matrix(target_boxes, blob_boxes(blobs)) >= blob_iou
         self.targets += match.shape[0]
         self.targets_found += int(match.any(axis=1).sum())
         self.blobs += match.shape[1]
