@@ -10,14 +10,21 @@ import json
 import shutil
 from pathlib import Path
 
-import cv2
 import mlflow
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from spacetrack import build_data, cli, track
 from spacetrack.config import compose_config
-from spacetrack.data.layout import MANIFEST, frame_name, frame_paths, load_manifest, read_mot
+from spacetrack.data.layout import (
+    MANIFEST,
+    frame_name,
+    frame_paths,
+    load_manifest,
+    read_mask,
+    read_mot,
+    read_rgb,
+)
 from spacetrack.mlflow_log import start_run
 from spacetrack.viz.draw import draw_boxes, draw_trails
 from spacetrack.viz.video import VideoWriter
@@ -53,13 +60,13 @@ def write_clip(root: Path, seq: dict, path: Path) -> int:
     frames = frame_paths(root, seq["name"])
     with VideoWriter(path, fps=seq["fps"], size=(2 * seq["width"], seq["height"])) as video:
         for frame, img_path in enumerate(frames, start=1):
-            rgb = cv2.cvtColor(cv2.imread(str(img_path)), cv2.COLOR_BGR2RGB)
+            rgb = read_rgb(img_path)
             rows = gt[gt[:, 0] == frame]
             for _, tid, x, y, w, h, conf, *_ in rows:
                 if conf > 0:
                     trails.setdefault(int(tid), []).append((x + w / 2, y + h / 2))
             left = annotate(rgb, rows, static[static[:, 0] == frame], trails)
-            mask = cv2.imread(str(d / "masks" / frame_name(frame, "png")), cv2.IMREAD_GRAYSCALE)
+            mask = read_mask(d / "masks" / frame_name(frame, "png"))
             video.write(np.hstack([left, np.dstack([mask] * 3)]))
     return len(frames)
 

@@ -23,7 +23,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spacetrack import cli
 from spacetrack.config import resolved_dict
-from spacetrack.data.layout import frame_paths, load_manifest, read_mot
+from spacetrack.data.layout import frame_paths, load_manifest, read_mask, read_mot, read_rgb
 from spacetrack.io import atomic_path, atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.evaluation import MotionScore
@@ -65,20 +65,10 @@ def build_methods(methods: DictConfig, *, compensate: bool | None = None) -> dic
     return detectors
 
 
-def read_frame(path: Path) -> np.ndarray:
-    """RGB uint8 image at `path`."""
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FileNotFoundError(f"{path}: missing or not an image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-
-
 def read_truth_mask(seq_dir: Path, index: int, shape: tuple[int, int]) -> np.ndarray:
     """Ground-truth motion mask of 0-based frame `index` (masks/ is 1-based)."""
     path = seq_dir / "masks" / f"{index + 1:06d}.png"
-    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if mask is None:
-        raise FileNotFoundError(f"{path}: missing or not an image (ground-truth mask of frame {index + 1})")
+    mask = read_mask(path)
     if mask.shape != shape:
         raise ValueError(f"{path}: mask of shape {mask.shape}, the frames are {shape}")
     return mask
@@ -121,7 +111,7 @@ def score_sequence(cfg: DictConfig, seq_dir: Path, detectors: dict, sheet_at: fl
     darks: dict[int, np.ndarray] = {}
     tiles: dict[str, np.ndarray] = {}
     for i, path in enumerate(paths):
-        frame = read_frame(path)
+        frame = read_rgb(path)
         truths[i] = read_truth_mask(seq_dir, i, frame.shape[:2])
         darks[i] = to_grey(frame) < cfg.dark_level
         truths.pop(i - latency - 1, None)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from spacetrack.data.crops import CropDataset, check_crop_size, window_labels
-from spacetrack.data.frame_store import FrameStore, read_rgb
-from spacetrack.data.layout import frame_paths, load_manifest
+from spacetrack.data.frame_store import FrameStore
+from spacetrack.data.layout import frame_paths, load_manifest, read_rgb
 from spacetrack.data.yolo_dataset import YoloDataset, frame_samples, read_labels
 
 

@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from spacetrack.data.layout import frame_name, read_mot  # noqa: E402
+from spacetrack.data.layout import frame_name, read_mot, read_rgb  # noqa: E402
 from spacetrack.viz.draw import draw_boxes  # noqa: E402
 from spacetrack.viz.sheet import contact_sheet  # noqa: E402
 
@@ -87,8 +87,7 @@ def write_contact_sheet(
     images, captions = [], []
     for seq in sequences[:tiles]:
         frame = seq["num_frames"] // 2
-        bgr = cv2.imread(str(root / seq["name"] / "img" / frame_name(frame, image_ext)))
-        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        rgb = read_rgb(root / seq["name"] / "img" / frame_name(frame, image_ext))
         for gt_file, colour in (("gt.txt", (255, 40, 40)), ("static.txt", (40, 255, 40))):
             rows = read_mot(root / seq["name"] / "gt" / gt_file)
             rows = rows[(rows[:, 0] == frame) & (rows[:, 6] > 0)]

@@ -17,22 +17,13 @@ import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
-from spacetrack.data.layout import frame_paths, load_manifest
+from spacetrack.data.layout import frame_paths, load_manifest, read_rgb
 from spacetrack.io import atomic_path, atomic_write_text
 
 Enhancer = Callable[[np.ndarray], np.ndarray]
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    """RGB uint8 (H, W, 3) image at `path`; empty or unreadable files are an error naming the file."""
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None or bgr.size == 0:
-        raise ValueError(f"{path}: cannot read image (empty, corrupt or not an image)")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def default_cache_dir(root: str | Path) -> Path:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 MANIFEST = "manifest.json"
@@ -20,6 +21,25 @@ _MOT_DEFAULTS = np.array([np.nan] * 6 + [1.0, -1.0, -1.0])  # conf, class, visib
 def frame_name(frame: int, ext: str) -> str:
     """File name of 1-based `frame`, e.g. frame_name(1, "jpg") == "000001.jpg"."""
     return f"{frame:06d}.{ext}"
+
+
+def _read_image(path: str | Path, flags: int) -> np.ndarray:
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{path}: image not found")
+    image = cv2.imread(str(path), flags)
+    if image is None or image.size == 0:
+        raise ValueError(f"{path}: cannot read image (empty, corrupt or not an image)")
+    return image
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """RGB uint8 (H, W, 3) image at `path`; a missing, empty or unreadable file is an error naming it."""
+    return cv2.cvtColor(_read_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def read_mask(path: str | Path) -> np.ndarray:
+    """(H, W) uint8 single-channel image at `path` (a motion mask); errors as `read_rgb`."""
+    return _read_image(path, cv2.IMREAD_GRAYSCALE)
 
 
 def load_manifest(root: str | Path) -> dict:

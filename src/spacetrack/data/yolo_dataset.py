@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from spacetrack.data.frame_store import FrameStore, read_rgb
-from spacetrack.data.layout import frame_paths
+from spacetrack.data.frame_store import FrameStore
+from spacetrack.data.layout import frame_paths, read_rgb
 
 PAD_VALUE = 114
 Enhancer = Callable[[np.ndarray], np.ndarray]

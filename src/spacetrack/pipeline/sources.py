@@ -14,8 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from spacetrack.data.layout import frame_paths
-from spacetrack.data.yolo_dataset import read_rgb
+from spacetrack.data.layout import frame_paths, read_rgb
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
 
