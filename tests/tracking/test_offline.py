@@ -91,3 +91,17 @@ def test_rows_of_the_wrong_shape_are_refused():
 
 def test_empty_rows_pass_through():
     assert post_process(np.zeros((0, 6)), np.zeros((0, 6)), OfflineSettings()).shape == (0, 6)
+
+
+def test_the_tracker_lists_a_tentative_track_as_matched_before_it_is_output():
+    from spacetrack.tracking.deepsort import DeepSort
+
+    tracker = DeepSort(max_cosine_distance=None, nn_budget=None, max_iou_distance=0.7, max_age=30,
+                       n_init=3, min_confidence=0.0, nms_max_overlap=1.0)  # fmt: skip
+    box = np.array([[10.0, 20.0, 8.0, 6.0]])
+    for frame in range(1, 4):
+        out = tracker.step(box + [2.0 * frame, 0, 0, 0], np.ones(1))
+        matched = tracker.matched_tracks()
+        assert len(matched) == 1 and matched[0, 0] == 1
+        np.testing.assert_allclose(matched[0, 1:], box[0] + [2.0 * frame, 0, 0, 0])  # the detection's box
+        assert len(out) == (1 if frame == 3 else 0)  # output from the n_init-th hit on

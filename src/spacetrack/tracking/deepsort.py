@@ -115,6 +115,10 @@ class DeepSort:
         )
         return track_rows(self.tracker.outputs())
 
+    def matched_tracks(self) -> np.ndarray:
+        """Rows (track id, x, y, w, h) of every track matched to a detection this frame, output or not."""
+        return track_rows(self.tracker.matched())
+
     def static_tracks(self) -> np.ndarray:
         """Rows (track id, x, y, w, h) of the confirmed tracks held static this frame (kept, not output)."""
         return track_rows(self.tracker.static_outputs())

@@ -115,6 +115,11 @@ class Tracker:
         """Like `outputs`, the confirmed tracks that `dynamics` holds static (none without it)."""
         return self._listed(dynamic=False) if self.dynamics is not None else []
 
+    def matched(self) -> list[tuple[int, np.ndarray]]:
+        """(track id, box `tlwh` of its detection) of every track matched this frame, tentative, static
+        and output alike: what offline backfill (`tracking.offline`) gives back to the tracks output later."""
+        return [(t.track_id, t.detection_tlwh) for t in self.tracks if t.time_since_update == 0]
+
     def _listed(self, *, dynamic: bool) -> list[tuple[int, np.ndarray]]:
         shown = [
             t
