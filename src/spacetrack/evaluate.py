@@ -8,7 +8,8 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from spacetrack import cli
-from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.data.layout import read_mot
+from spacetrack.evaluation import OVERALL, evaluate
 from spacetrack.evaluation.table import format_table
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_metrics_step, start_run
@@ -16,7 +17,7 @@ from spacetrack.mlflow_log import log_metrics_step, start_run
 
 def run(cfg: DictConfig) -> dict[str, float]:
     """Print the metrics table, write JSON if `output_json` is set, return the overall metrics."""
-    gt, results = read_mot_file(cfg.gt), read_mot_file(cfg.results)
+    gt, results = read_mot(cfg.gt), read_mot(cfg.results)
     name = Path(cfg.results).stem
     with start_run(cfg, run_name=name):
         scores = evaluate(
@@ -32,7 +33,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
 @cli.entry_point("evaluate", files="output_json")
 def main(cfg: DictConfig) -> dict[str, float]:
     scores = run(cfg)
-    return {k: scores[k] for k in ("mota", "idf1", "idsw") if k in scores}
+    return {k: scores[k] for k in ("hota", "mota", "idf1", "idsw") if k in scores}
 
 
 if __name__ == "__main__":

@@ -16,8 +16,8 @@ import torch
 from omegaconf import DictConfig
 
 from spacetrack import cli
-from spacetrack.data.layout import load_manifest, split_sequences
-from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.data.layout import load_manifest, read_mot, split_sequences
+from spacetrack.evaluation import OVERALL, evaluate
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.dynamic import DynamicHold
@@ -29,7 +29,7 @@ from spacetrack.pipeline.timing import StageTimer
 from spacetrack.track_detections import rows_as_mot
 
 log = logging.getLogger(__name__)
-SCORES = ("mota", "motp", "idf1", "idsw", "fp", "fn", "mt", "ml", "precision", "recall")
+SCORES = ("hota", "deta", "assa", "mota", "motp", "idf1", "idsw", "fp", "fn", "mt", "ml", "precision", "recall")  # fmt: skip
 
 
 def select_sources(cfg: DictConfig) -> list[tuple[FrameSource, Path | None]]:
@@ -121,7 +121,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             results.append(result)
             seq_metrics = {"fps": result.num_frames / result.wall_seconds, **result.timings}
             if gt_path is not None:
-                gt = read_mot_file(gt_path)
+                gt = read_mot(gt_path)
                 pairs[result.name] = (gt[gt[:, 0] <= result.num_frames], rows_as_mot(result.rows))
                 scores = evaluate(
                     {result.name: pairs[result.name]},

@@ -14,7 +14,8 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from spacetrack import cli
-from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.data.layout import read_mot
+from spacetrack.evaluation import OVERALL, evaluate
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.tracking import track_sequence
 from spacetrack.tracking.io import DETECTION_COLUMNS, DetectionFileError, load_detections, write_mot_results
@@ -37,7 +38,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
             f"{cfg.detections}: no appearance features (10 columns), but the tracker matches by "
             "appearance; use tracker=sort (or tracker.max_cosine_distance=null) for boxes alone"
         )
-    gt = read_mot_file(cfg.gt) if cfg.gt else None
+    gt = read_mot(cfg.gt) if cfg.gt else None
     tracker = instantiate(cfg.tracker)
     with start_run(cfg, run_name=Path(cfg.detections).stem):
         start = time.perf_counter()

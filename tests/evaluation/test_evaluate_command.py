@@ -1,5 +1,7 @@
 import json
 
+import numpy as np
+import pytest
 from hydra import compose, initialize_config_dir
 
 from spacetrack.config import CONF_DIR
@@ -19,7 +21,11 @@ def test_scores_a_results_file_prints_a_table_and_writes_json(tmp_path, capsys):
     # 3 counted ground-truth boxes (one is hidden): 2 matched, 1 missed, 1 false positive
     assert (metrics["fn"], metrics["fp"], metrics["idsw"]) == (1, 1, 0)
     assert metrics["mota"] == 1 - 2 / 3
+    # HOTA: the moved box (IoU 380 / 420 = 0.905) matches at the 18 thresholds alpha <= 0.90, where
+    # TP 2, FN 1, FP 1 (DetA 1/2) and both matches are gt 1 - result 5 (AssA 1); at alpha 0.95 only
+    # frame 1 matches: DetA 1/5, AssA 1 / (2 + 2 - 1).
+    assert metrics["hota"] == pytest.approx((18 * np.sqrt(1 / 2) + np.sqrt(1 / 5 / 3)) / 19)
     saved = json.loads(out.read_text())
     assert saved["OVERALL"] == metrics and set(saved) == {"res", "OVERALL"}
     table = capsys.readouterr().out
-    assert "| res | 33.33 |" in table and "MOTA" in table
+    assert "| res | 33.33 |" in table and "MOTA" in table and "HOTA" in table

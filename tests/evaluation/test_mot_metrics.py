@@ -4,7 +4,8 @@ import motmetrics
 import numpy as np
 import pytest
 
-from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.data.layout import read_mot
+from spacetrack.evaluation import OVERALL, evaluate
 
 TUD = Path(motmetrics.__file__).parent / "data"
 # motmetrics' published values for its bundled TUD files (its tests/test_metrics.py), in the order
@@ -81,9 +82,7 @@ KEYS = [
 
 def test_reproduces_motmetrics_published_tud_values():
     names = ["TUD-Campus", "TUD-Stadtmitte"]
-    results = evaluate(
-        {n: (read_mot_file(TUD / n / "gt.txt"), read_mot_file(TUD / n / "test.txt")) for n in names}
-    )
+    results = evaluate({n: (read_mot(TUD / n / "gt.txt"), read_mot(TUD / n / "test.txt")) for n in names})
     for name, expected in PUBLISHED.items():
         got = [results[name][k] for k in KEYS] + [results[name]["mota"], 1 - results[name]["motp"]]
         np.testing.assert_allclose(got, expected, atol=1e-3, err_msg=name)
@@ -151,15 +150,15 @@ def test_reader_names_file_line_and_value(tmp_path):
     path = tmp_path / "res.txt"
     path.write_text("1,1,0,0,10,10,1,-1,-1,-1\n2,1,0,zero,10,10\n")
     with pytest.raises(ValueError, match=r"res.txt: line 2 is not numeric: '2,1,0,zero,10,10'"):
-        read_mot_file(path)
+        read_mot(path)
     path.write_text("1,1,0,0\n")
     with pytest.raises(ValueError, match="line 1 has 4 columns"):
-        read_mot_file(path)
+        read_mot(path)
     path.write_text("1,1,0,nan,10,10\n")
     with pytest.raises(ValueError, match="line 1 holds a NaN"):
-        read_mot_file(path)
+        read_mot(path)
     path.write_text("")
-    assert read_mot_file(path).shape == (0, 9)
+    assert read_mot(path).shape == (0, 9)
 
 
 def test_scoring_keeps_the_log_clean(caplog):

@@ -11,7 +11,8 @@ import pytest
 from hydra.utils import instantiate
 
 from spacetrack.config import compose_config
-from spacetrack.evaluation import OVERALL, evaluate, read_mot_file
+from spacetrack.data.layout import read_mot
+from spacetrack.evaluation import OVERALL, evaluate
 from spacetrack.track_detections import rows_as_mot
 from spacetrack.tracking import track_sequence
 
@@ -32,7 +33,7 @@ def test_oracle_detections_track_almost_perfectly(smoke_dataset):
     cfg = compose_config("track_detections", ["tracker=deepsort_original", "logger=none"])
     sequences = {}
     for seq_dir in sorted(smoke_dataset.glob("seq_*")):
-        gt = read_mot_file(seq_dir / "gt" / "gt.txt")
+        gt = read_mot(seq_dir / "gt" / "gt.txt")
         assert (gt[:, 6] == 0).sum() < len(gt) / 4  # some hidden rows, mostly visible ones
         rows = track_sequence(instantiate(cfg.tracker), oracle_detections(gt, rng))
         sequences[seq_dir.name] = (gt, rows_as_mot(rows))

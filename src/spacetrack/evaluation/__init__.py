@@ -1,6 +1,6 @@
-"""Scoring tracker results against MOT ground truth: pure metric functions and a file reader."""
+"""Scoring tracker results against MOT ground truth: pure metric functions of MOT arrays (read them with
+`spacetrack.data.layout.read_mot`)."""
 
-from spacetrack.evaluation.io import read_mot_file
 from spacetrack.evaluation.mot import OVERALL, accumulate, evaluate, summarize
 
-__all__ = ["OVERALL", "accumulate", "evaluate", "read_mot_file", "summarize"]
+__all__ = ["OVERALL", "accumulate", "evaluate", "summarize"]

@@ -1,10 +1,11 @@
-"""CLEAR-MOT and identity metrics (MOTA, MOTP, IDF1, IDSW, FP, FN, MT, ML) at an IoU threshold.
+"""CLEAR-MOT and identity metrics (MOTA, MOTP, IDF1, IDSW, FP, FN, MT, ML) at an IoU threshold, and HOTA.
 
 Pure functions of MOT arrays (N, 9) `frame,id,x,y,w,h,conf,class,visibility` (boxes `tlwh`, pixels);
 motmetrics does the bookkeeping, we compute the IoU distances (its own helper needs NumPy < 2).
 Ground-truth rows with conf 0 (fully hidden targets) or a known visibility below `min_visibility` are
 ignored as MOTChallenge does: they are neither misses nor matches, and a hypothesis that the frame's
 optimal assignment pairs with one of them is dropped rather than counted as a false positive.
+HOTA, DetA, AssA and LocA come from TrackEval (`evaluation.hota`) on the same rows.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import motmetrics as mm
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from spacetrack.evaluation.hota import hota_scores, sequence_data
 from spacetrack.tracking.iou_matching import iou_matrix
 
 OVERALL = "OVERALL"
@@ -83,18 +85,29 @@ def _hypotheses_on_ignored(
     return out
 
 
+def scored_rows(
+    gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, min_visibility: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """(gt mask, hyp mask) of the rows that count: ground truth less `ignored_rows`, results less the
+    hypotheses each frame's optimal assignment pairs with an ignored row."""
+    ignored = ignored_rows(gt, min_visibility) if gt.shape[1] > 8 else np.zeros(len(gt), bool)
+    dropped = np.zeros(len(hyp), bool)
+    gt_frames, hyp_frames = gt[:, 0].astype(int), hyp[:, 0].astype(int)
+    for frame in np.unique(gt_frames[ignored]):
+        g, h = gt_frames == frame, hyp_frames == frame
+        dropped[h] = _hypotheses_on_ignored(gt[g, 2:6], ignored[g], hyp[h, 2:6], iou_threshold)
+    return ~ignored, ~dropped
+
+
 def accumulate(
     gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, min_visibility: float = 0.0
 ) -> mm.MOTAccumulator:
     """Frame-by-frame matching of results `hyp` against ground truth `gt` (both (N, >=6) MOT arrays)."""
     acc = mm.MOTAccumulator(auto_id=False)
+    gt_keep, hyp_keep = scored_rows(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
     gt_frames, hyp_frames = gt[:, 0].astype(int), hyp[:, 0].astype(int)
-    ignored = ignored_rows(gt, min_visibility) if gt.shape[1] > 8 else np.zeros(len(gt), bool)
     for frame in np.union1d(gt_frames, hyp_frames):
-        g, h = gt[gt_frames == frame], hyp[hyp_frames == frame]
-        g_ignored = ignored[gt_frames == frame]
-        h = h[~_hypotheses_on_ignored(g[:, 2:6], g_ignored, h[:, 2:6], iou_threshold)]
-        g = g[~g_ignored]
+        g, h = gt[(gt_frames == frame) & gt_keep], hyp[(hyp_frames == frame) & hyp_keep]
         acc.update(
             g[:, 1].astype(int),
             h[:, 1].astype(int),
@@ -141,9 +154,14 @@ def evaluate(
     iou_threshold: float = 0.5,
     min_visibility: float = 0.0,
 ) -> dict[str, dict[str, float]]:
-    """`summarize` of {name: (gt, hyp)} MOT arrays; see `accumulate` for the matching rules."""
-    accs = {
-        name: accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
-        for name, (gt, hyp) in sequences.items()
-    }
-    return summarize(accs)
+    """`summarize` of {name: (gt, hyp)} MOT arrays plus HOTA, DetA, AssA and LocA (`hota`, fractions);
+    see `scored_rows` for which rows count."""
+    accs, data = {}, {}
+    for name, (gt, hyp) in sequences.items():
+        accs[name] = accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
+        gt_keep, hyp_keep = scored_rows(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
+        data[name] = sequence_data(gt[gt_keep], hyp, hyp_keep)
+    out = summarize(accs)
+    for name, scores in hota_scores(data, OVERALL).items():
+        out[name] |= scores
+    return out

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-COLUMNS = ("mota", "motp", "idf1", "idsw", "fp", "fn", "mt", "ml", "precision", "recall")
-_FRACTIONS = {"mota", "motp", "idf1", "precision", "recall"}
+COLUMNS = ("mota", "hota", "deta", "assa", "motp", "idf1", "idsw", "fp", "fn", "mt", "ml", "precision", "recall")  # fmt: skip
+_FRACTIONS = {"hota", "deta", "assa", "mota", "motp", "idf1", "precision", "recall"}
 
 
 def format_table(results: Mapping[str, Mapping[str, float]]) -> str:
