@@ -166,6 +166,31 @@ def find_run(run_id: str | None) -> mlflow.entities.Run | None:
         return None
 
 
+def finished_runs(
+    experiment: str,
+    *,
+    tags: Mapping[str, str] | None = None,
+    params: Mapping[str, str] | None = None,
+    tracking_uri: str,
+    max_results: int = 1000,
+) -> list[mlflow.entities.Run]:
+    """The FINISHED runs of `experiment` (none when there is no such experiment) that carry every tag in
+    `tags` and parameter in `params` with those values, newest first."""
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri)
+    found = client.get_experiment_by_name(experiment)
+    if found is None:
+        return []
+    where = [f"tags.`{k}` = '{v}'" for k, v in (tags or {}).items()]
+    where += [f"params.`{k}` = '{v}'" for k, v in (params or {}).items()]
+    where.append("attributes.status = 'FINISHED'")
+    return client.search_runs(
+        [found.experiment_id],
+        " and ".join(where),
+        order_by=["attributes.start_time DESC"],
+        max_results=max_results,
+    )
+
+
 @contextmanager
 def start_run(
     cfg: DictConfig,

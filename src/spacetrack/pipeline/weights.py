@@ -11,7 +11,7 @@ from pathlib import Path
 
 import mlflow
 
-from spacetrack.mlflow_log import artifact_file
+from spacetrack.mlflow_log import artifact_file, finished_runs
 from spacetrack.mlflow_log import tracking_uri as resolve_uri
 
 
@@ -56,15 +56,8 @@ def fold_artifact(
     uri = resolve_uri(tracking_uri)
     client = mlflow.MlflowClient(tracking_uri=uri)
     wanted = {"fold": str(fold), **(tags or {})}
-    where = " and ".join(f"tags.`{k}` = '{v}'" for k, v in wanted.items())
-    where += f" and params.`data.name` = '{dataset}' and attributes.status = 'FINISHED'"
-    found = client.get_experiment_by_name(experiment)
-    runs = (
-        client.search_runs(
-            [found.experiment_id], where, order_by=["attributes.start_time DESC"], max_results=20
-        )
-        if found is not None
-        else []
+    runs = finished_runs(
+        experiment, tags=wanted, params={"data.name": dataset}, tracking_uri=uri, max_results=20
     )
     for run in runs:
         names = {a.path for a in client.list_artifacts(run.info.run_id, str(Path(artifact).parent))}
