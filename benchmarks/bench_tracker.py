@@ -32,11 +32,11 @@ import numpy as np
 import scipy.linalg  # noqa: F401  (loaded before pinning, so its BLAS is pinned too)
 from threadpoolctl import threadpool_limits
 
-from spacetrack.data.layout import read_mot
+from spacetrack.data.layout import BOX, CONF, read_mot
 from spacetrack.evaluation import evaluate
 from spacetrack.track_detections import rows_as_mot
 from spacetrack.tracking import DeepSort
-from spacetrack.tracking.io import iter_frames, load_detections
+from spacetrack.tracking.io import FEATURES, iter_frames, load_detections
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import markdown_table, summarize, time_call, write_report  # noqa: E402
@@ -79,7 +79,9 @@ def write_synthetic_files(
 
 def frames_from_file(path: Path) -> list[tuple[np.ndarray, ...]]:
     """Per frame (tlwh (N, 4) px, confidence (N,), feature (N, D)) of a detection file."""
-    return [(rows[:, 2:6], rows[:, 6], rows[:, 10:]) for _, rows in iter_frames(load_detections(path))]
+    return [
+        (rows[:, BOX], rows[:, CONF], rows[:, FEATURES]) for _, rows in iter_frames(load_detections(path))
+    ]
 
 
 def run_ours(frames: list[tuple[np.ndarray, ...]]) -> list[dict[int, np.ndarray]]:

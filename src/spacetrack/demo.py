@@ -17,6 +17,10 @@ from omegaconf import DictConfig, OmegaConf
 from spacetrack import build_data, cli, track
 from spacetrack.config import compose_config
 from spacetrack.data.layout import (
+    BOX,
+    CONF,
+    FRAME,
+    ID,
     MANIFEST,
     frame_name,
     frame_paths,
@@ -44,12 +48,12 @@ def dataset_is_current(cfg: DictConfig) -> bool:
 
 def annotate(rgb: np.ndarray, rows: np.ndarray, statics: np.ndarray, trails: dict[int, list]) -> np.ndarray:
     """Frame with boxes: moving targets red with ids and trails, hidden ones grey, static objects green."""
-    seen = rows[rows[:, 6] > 0]
+    seen = rows[rows[:, CONF] > 0]
     out = draw_trails(rgb, {k: v for k, v in trails.items() if len(v) > 1}, color=MOVING)
-    out = draw_boxes(out, seen[:, 2:6], ids=seen[:, 1].astype(int).tolist(), color=MOVING)
-    hidden = rows[rows[:, 6] == 0]
-    out = draw_boxes(out, hidden[:, 2:6], labels=[f"{int(i)} hidden" for i in hidden[:, 1]], color=HIDDEN)
-    return draw_boxes(out, statics[:, 2:6], labels=["static"] * len(statics), color=STATIC)
+    out = draw_boxes(out, seen[:, BOX], ids=seen[:, ID].astype(int).tolist(), color=MOVING)
+    hidden = rows[rows[:, CONF] == 0]
+    out = draw_boxes(out, hidden[:, BOX], labels=[f"{int(i)} hidden" for i in hidden[:, ID]], color=HIDDEN)
+    return draw_boxes(out, statics[:, BOX], labels=["static"] * len(statics), color=STATIC)
 
 
 def write_clip(root: Path, seq: dict, path: Path) -> int:
@@ -61,11 +65,11 @@ def write_clip(root: Path, seq: dict, path: Path) -> int:
     with VideoWriter(path, fps=seq["fps"], size=(2 * seq["width"], seq["height"])) as video:
         for frame, img_path in enumerate(frames, start=1):
             rgb = read_rgb(img_path)
-            rows = gt[gt[:, 0] == frame]
+            rows = gt[gt[:, FRAME] == frame]
             for _, tid, x, y, w, h, conf, *_ in rows:
                 if conf > 0:
                     trails.setdefault(int(tid), []).append((x + w / 2, y + h / 2))
-            left = annotate(rgb, rows, static[static[:, 0] == frame], trails)
+            left = annotate(rgb, rows, static[static[:, FRAME] == frame], trails)
             mask = read_mask(d / "masks" / frame_name(frame, "png"))
             video.write(np.hstack([left, np.dstack([mask] * 3)]))
     return len(frames)

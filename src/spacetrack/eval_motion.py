@@ -23,7 +23,17 @@ from omegaconf import DictConfig, OmegaConf
 
 from spacetrack import cli
 from spacetrack.config import resolved_dict
-from spacetrack.data.layout import frame_paths, load_manifest, read_mask, read_mot, read_rgb
+from spacetrack.data.layout import (
+    BOX,
+    CONF,
+    FRAME,
+    VISIBILITY,
+    frame_paths,
+    load_manifest,
+    read_mask,
+    read_mot,
+    read_rgb,
+)
 from spacetrack.io import atomic_path, atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.evaluation import MotionScore
@@ -76,8 +86,8 @@ def read_truth_mask(seq_dir: Path, index: int, shape: tuple[int, int]) -> np.nda
 
 def target_boxes(gt: np.ndarray, min_visibility: float) -> dict[int, np.ndarray]:
     """{0-based frame: (N, 4) tlwh boxes of the visible objects} from MOT rows (gt.txt or static.txt)."""
-    visible = gt[(gt[:, 6] > 0) & (gt[:, 8] >= min_visibility)]
-    return {int(f) - 1: visible[visible[:, 0] == f, 2:6] for f in np.unique(visible[:, 0])}
+    visible = gt[(gt[:, CONF] > 0) & (gt[:, VISIBILITY] >= min_visibility)]
+    return {int(f) - 1: visible[visible[:, FRAME] == f, BOX] for f in np.unique(visible[:, FRAME])}
 
 
 def mask_overlay(mask: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from spacetrack.data.layout import frame_name, read_mot, read_rgb  # noqa: E402
+from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_name, read_mot, read_rgb  # noqa: E402
 from spacetrack.viz.draw import draw_boxes  # noqa: E402
 from spacetrack.viz.sheet import contact_sheet  # noqa: E402
 
@@ -90,8 +90,8 @@ def write_contact_sheet(
         rgb = read_rgb(root / seq["name"] / "img" / frame_name(frame, image_ext))
         for gt_file, colour in (("gt.txt", (255, 40, 40)), ("static.txt", (40, 255, 40))):
             rows = read_mot(root / seq["name"] / "gt" / gt_file)
-            rows = rows[(rows[:, 0] == frame) & (rows[:, 6] > 0)]
-            rgb = draw_boxes(rgb, rows[:, 2:6], ids=rows[:, 1].astype(int).tolist(), color=colour)
+            rows = rows[(rows[:, FRAME] == frame) & (rows[:, CONF] > 0)]
+            rgb = draw_boxes(rgb, rows[:, BOX], ids=rows[:, ID].astype(int).tolist(), color=colour)
         images.append(rgb)
         captions.append(f"{seq['name']} f{frame} fold {seq['fold']}")
     sheet = contact_sheet(

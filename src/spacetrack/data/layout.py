@@ -15,6 +15,9 @@ import numpy as np
 MANIFEST = "manifest.json"
 FORMAT_VERSION = 1
 MOT_COLUMNS = ("frame", "id", "x", "y", "w", "h", "conf", "class", "visibility")
+# Columns of a MOT row by name (box `tlwh` in pixels); the detection rows of `tracking.io` share the first
+# seven (with id -1).
+FRAME, ID, BOX, CONF, CLASS, VISIBILITY = 0, 1, slice(2, 6), 6, 7, 8
 _MOT_DEFAULTS = np.array([np.nan] * 6 + [1.0, -1.0, -1.0])  # conf, class, visibility when absent
 
 

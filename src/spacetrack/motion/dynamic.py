@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from spacetrack.data.layout import BOX
 from spacetrack.motion.blobs import Blob, blob_boxes
 from spacetrack.tracking.iou_matching import intersections, iou_matrix
 
@@ -76,8 +77,8 @@ class DynamicFilter:
         return dynamic
 
     def select(self, detections: np.ndarray, blobs: list[Blob]) -> np.ndarray:
-        """The rows of a detection array (`frame,-1,x,y,w,h,conf,...` with tlwh at columns 2-5) that move."""
-        return detections[self(detections[:, 2:6], blobs)]
+        """The rows of a detection array (`tracking.io` layout, box `tlwh` at `data.layout.BOX`) that move."""
+        return detections[self(detections[:, BOX], blobs)]
 
 
 class DynamicHold:

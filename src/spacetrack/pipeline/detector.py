@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from spacetrack.data.layout import read_mot
+from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, read_mot
 from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import check_image_size, frame_detections, network_input
@@ -134,8 +134,8 @@ class GroundTruthDetector:
         if (folder / "static.txt").is_file():
             rows.append(read_mot(folder / "static.txt"))
         table = np.concatenate(rows)
-        self._rows = table[table[:, 6] > 0]
+        self._rows = table[table[:, CONF] > 0]
 
     def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
-        rows = self._rows[self._rows[:, 0] == frame]
-        return np.column_stack([rows[:, 2:6], np.full(len(rows), self.score), rows[:, 7]])
+        rows = self._rows[self._rows[:, FRAME] == frame]
+        return np.column_stack([rows[:, BOX], np.full(len(rows), self.score), rows[:, CLASS]])

@@ -17,6 +17,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from spacetrack.data.layout import BOX, CONF
 from spacetrack.motion.blobs import Blob
 from spacetrack.motion.dynamic import DynamicFilter, DynamicHold
 from spacetrack.pipeline.cache import CachedSequence, CacheKey, DetectionCache
@@ -25,7 +26,7 @@ from spacetrack.pipeline.sources import FrameSource
 from spacetrack.pipeline.stages import DetectionStream, FrameDetections, dynamic_flags
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.tracking import DeepSort
-from spacetrack.tracking.io import write_mot_results
+from spacetrack.tracking.io import FEATURES, write_mot_results
 from spacetrack.viz.video import VideoWriter
 
 
@@ -85,7 +86,7 @@ def _reaching_tracker(item: FrameDetections, mode: str, hold: DynamicHold | None
     """(N,) bool: the frame's detections that the tracker sees in filter `mode`."""
     if mode != "frame":
         return np.ones(len(item.rows), bool)
-    return hold.keep(item.rows[:, 2:6], item.dynamic) if hold is not None else item.dynamic
+    return hold.keep(item.rows[:, BOX], item.dynamic) if hold is not None else item.dynamic
 
 
 def _static_boxes(item: FrameDetections, keep: np.ndarray, mode: str, tracker: DeepSort) -> np.ndarray:
@@ -94,7 +95,7 @@ def _static_boxes(item: FrameDetections, keep: np.ndarray, mode: str, tracker: D
     if mode == "track":
         return tracker.static_tracks()[:, 1:5]
     static_mask = ~item.dynamic & ~keep if mode == "frame" else ~item.dynamic
-    return item.rows[static_mask & (item.rows[:, 6] >= tracker.min_confidence), 2:6]
+    return item.rows[static_mask & (item.rows[:, CONF] >= tracker.min_confidence), BOX]
 
 
 def _recording(stream: Iterator[FrameDetections], sink: list[FrameDetections]) -> Iterator[FrameDetections]:
@@ -179,9 +180,9 @@ def run_source(
             dets = item.rows[keep]
             with timer("tracker"):
                 out = tracker.step(
-                    dets[:, 2:6],
-                    dets[:, 6],
-                    dets[:, 10:],
+                    dets[:, BOX],
+                    dets[:, CONF],
+                    dets[:, FEATURES],
                     dynamic=item.dynamic[keep] if mode == "track" else None,
                     image=item.image,
                 )

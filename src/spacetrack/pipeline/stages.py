@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spacetrack.data.layout import BOX, CONF, FRAME
 from spacetrack.motion import DynamicFilter, MotionDetector
 from spacetrack.motion.blobs import Blob
 from spacetrack.pipeline.sources import FrameSource
 from spacetrack.pipeline.timing import StageTimer
-
-HEAD_COLUMNS = 10  # frame,-1,x,y,w,h,confidence,-1,-1,-1 before the appearance feature
+from spacetrack.tracking.io import HEAD_COLUMNS
 
 
 @dataclass
@@ -47,7 +47,7 @@ class FrameDetections:
 
 def dynamic_flags(dynamic_filter: DynamicFilter, rows: np.ndarray, blobs: list[Blob] | None) -> np.ndarray:
     """(N,) bool: which detection rows (the DeepSORT layout) move by `blobs`; all of them with no motion stage."""
-    return np.ones(len(rows), bool) if blobs is None else dynamic_filter(rows[:, 2:6], blobs)
+    return np.ones(len(rows), bool) if blobs is None else dynamic_filter(rows[:, BOX], blobs)
 
 
 def detection_rows(frame: int, boxes: np.ndarray, features: np.ndarray) -> np.ndarray:
@@ -55,8 +55,9 @@ def detection_rows(frame: int, boxes: np.ndarray, features: np.ndarray) -> np.nd
     (N, D) features (N may be 0)."""
     n = len(boxes)
     head = np.full((n, HEAD_COLUMNS), -1.0)
-    head[:, 0] = frame
-    head[:, 2:7] = boxes[:, :5]
+    head[:, FRAME] = frame
+    head[:, BOX] = boxes[:, :4]
+    head[:, CONF] = boxes[:, 4]
     return np.hstack([head, np.asarray(features, dtype=np.float64)])
 
 

@@ -23,7 +23,7 @@ import torch
 from torch.utils.data import Dataset
 
 from spacetrack.data.frame_store import FrameStore
-from spacetrack.data.layout import read_mot
+from spacetrack.data.layout import BOX, CONF, FRAME, ID, VISIBILITY, read_mot
 from spacetrack.reid.crops import Cropper, frame_tensor
 
 
@@ -68,16 +68,18 @@ def collect_crops(
             raise FileNotFoundError(f"{Path(root) / seq / 'gt' / 'gt.txt'} not found (sequence {seq!r})")
         mot = np.concatenate(rows)
         keep = (
-            ((mot[:, 0] - 1) % frame_stride == 0)
-            & (mot[:, 8] >= min_visibility)
-            & (mot[:, 6] > 0)
-            & (np.minimum(mot[:, 4], mot[:, 5]) >= min_box_size)
+            ((mot[:, FRAME] - 1) % frame_stride == 0)
+            & (mot[:, VISIBILITY] >= min_visibility)
+            & (mot[:, CONF] > 0)
+            & (mot[:, BOX][:, 2:].min(axis=1) >= min_box_size)
         )
         mot = mot[keep]
-        ids = np.unique(mot[:, 1]).astype(int)
-        label = np.searchsorted(ids, mot[:, 1].astype(int)) + len(names)
+        ids = np.unique(mot[:, ID]).astype(int)
+        label = np.searchsorted(ids, mot[:, ID].astype(int)) + len(names)
         names += [(seq, int(i)) for i in ids]
-        parts.append((label, np.full(len(mot), s), mot[:, 0].astype(int), mot[:, 2:6], mot[:, 8]))
+        parts.append(
+            (label, np.full(len(mot), s), mot[:, FRAME].astype(int), mot[:, BOX], mot[:, VISIBILITY])
+        )
     if not names:
         raise ValueError(
             f"no usable crops in {root} for {len(sequences)} sequences (min_visibility={min_visibility}, "

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from spacetrack.data.layout import BOX, CONF
 from spacetrack.tracking.camera_motion import CameraMotion
 from spacetrack.tracking.detection import Detections
 from spacetrack.tracking.dynamic import TrackDynamics
-from spacetrack.tracking.io import iter_frames
+from spacetrack.tracking.io import FEATURES, iter_frames
 from spacetrack.tracking.kalman_filter import CHI2_95_4DOF
 from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
 from spacetrack.tracking.preprocessing import filter_detections
@@ -139,6 +140,6 @@ def track_sequence(tracker: DeepSort, dets: np.ndarray) -> np.ndarray:
     """
     results = []
     for frame, rows in iter_frames(dets):
-        out = tracker.step(rows[:, 2:6], rows[:, 6], rows[:, 10:])
+        out = tracker.step(rows[:, BOX], rows[:, CONF], rows[:, FEATURES])
         results.append(np.column_stack([np.full(len(out), frame), out]))
     return np.concatenate(results) if results else np.zeros((0, 6))

@@ -16,6 +16,10 @@ import numpy as np
 from spacetrack.io import atomic_write_text
 
 DETECTION_COLUMNS = ("frame", "-1", "x", "y", "w", "h", "confidence", "-1", "-1", "-1")
+HEAD_COLUMNS = len(DETECTION_COLUMNS)
+# The appearance feature after the head; frame, box and confidence are at the columns of a MOT row
+# (`data.layout.FRAME`, `BOX`, `CONF`).
+FEATURES = slice(HEAD_COLUMNS, None)
 LAYOUT = "frame,-1,x,y,w,h,confidence,-1,-1,-1 followed by a D-dim feature"
 
 
@@ -24,7 +28,7 @@ class DetectionFileError(ValueError):
 
 
 def _column_name(c: int) -> str:
-    return DETECTION_COLUMNS[c] if c < len(DETECTION_COLUMNS) else f"feature[{c - len(DETECTION_COLUMNS)}]"
+    return DETECTION_COLUMNS[c] if c < HEAD_COLUMNS else f"feature[{c - HEAD_COLUMNS}]"
 
 
 def _check_finite(path: Path, dets: np.ndarray) -> None:
@@ -32,13 +36,9 @@ def _check_finite(path: Path, dets: np.ndarray) -> None:
     if not len(bad):
         return
     r, c = (int(v) for v in bad[0])
-    feature_nan = np.isnan(dets[r, len(DETECTION_COLUMNS) :])
+    feature_nan = np.isnan(dets[r, FEATURES])
     first = int(np.argmax(feature_nan)) if feature_nan.any() else -1
-    if (
-        first > 0
-        and feature_nan[first:].all()
-        and np.isfinite(dets[r, : len(DETECTION_COLUMNS) + first]).all()
-    ):
+    if first > 0 and feature_nan[first:].all() and np.isfinite(dets[r, : HEAD_COLUMNS + first]).all():
         # NaN padding after a shorter feature: the rows were built with different feature sizes.
         raise DetectionFileError(
             f"{path}: row {r} has a {first}-dim feature (NaN-padded) but the file is "
@@ -75,9 +75,9 @@ def load_detections(path: str | Path) -> np.ndarray:
         raise DetectionFileError(f"{path}: not a readable .npy file ({err})") from err
     if dets.ndim != 2:
         raise DetectionFileError(f"{path}: array of shape {dets.shape}; expected N x (10 + D): {LAYOUT}")
-    if dets.shape[1] < len(DETECTION_COLUMNS):
+    if dets.shape[1] < HEAD_COLUMNS:
         raise DetectionFileError(
-            f"{path}: {dets.shape[1]} columns; expected at least {len(DETECTION_COLUMNS)}: {LAYOUT}"
+            f"{path}: {dets.shape[1]} columns; expected at least {HEAD_COLUMNS}: {LAYOUT}"
         )
     if not len(dets):
         raise DetectionFileError(f"{path}: empty (0 rows); expected at least one detection: {LAYOUT}")
