@@ -160,8 +160,8 @@ score-breakdown: $(STAMP) ## FN/FP by cause per scenario of a Table 4 row's trac
 	$(PY) experiments/score_breakdown/run.py --results outputs/table4/$(or $(ROW),gt_deepsort_original) \
 		--name $(or $(ROW),gt_deepsort_original)
 
-table4: $(STAMP) $(DEFAULT_DATA)/manifest.json ## Table 4 (MOTA per fold and row), resumable per fold and row -> experiments/table4_mota
-	$(PY) experiments/table4_mota/run.py $(ARGS)
+table4: $(STAMP) $(DEFAULT_DATA)/manifest.json ## Table 4 (MOTA, HOTA per fold and row), resumable -> experiments/table4_mota (ROWS=peers: BoxMOT's, after make peers)
+	$(PY) experiments/table4_mota/run.py $(if $(ROWS),--rows $(ROWS)) $(ARGS)
 
 bench: bench-enhance bench-tracker bench-train bench-detector bench-motion bench-reid bench-pipeline ## run every benchmark
 

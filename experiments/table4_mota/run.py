@@ -1,22 +1,24 @@
-"""Table 4: MOTA per fold for each tracking setting, resumable per (row, fold).
+"""Table 4: MOTA and HOTA per fold for each tracking setting, resumable per (row, fold).
 
     python experiments/table4_mota/run.py                         # every row, every fold
-    python experiments/table4_mota/run.py --rows gt_sort,gt_sort_nofilter --folds 0-8 --commit
+    python experiments/table4_mota/run.py --rows gt_sort,gt_sort_nofilter --folds 0-8
+    python experiments/table4_mota/run.py --rows gt_peers --folds 3 threads=1   # BoxMOT's trackers (make peers)
 
-Each finished (row, fold) writes `results/<row>/fold<k>.json` (its metrics, the overrides and the
-command), then `table4.md` and `table4.json` are regenerated from every result present; with `--commit`
-those files are committed at once, so a killed run loses at most the piece it was on. A piece whose
-fold has no trained detector or re-ID is skipped with the command that trains it; run again once it
-exists. With `--train` the missing model is trained there and then (that same command, plus the
-`--detector-args` or `--reid-args` overrides) and the piece runs after it: one command fills whole
-folds, and being killed loses little: finished training runs are in MLflow and found the next time,
-and a training stopped part-way goes on from its last epoch (`resume=auto` for the detector,
-`resume=true` for the re-ID). A piece already done is recomputed only when it is stale: when the settings that
-change its numbers (`settings_hash`: data, enhancement, detector, re-ID, tracker, motion stage,
-dynamic filter, scoring) differ from those it was made with; `--redo` recomputes the pieces asked for
-anyway (after a change of code rather than of settings). Stale cells are starred in `table4.md`.
+Each finished (row, fold) writes `results/<row>/fold<k>.json` (its metrics overall and per sequence, the
+overrides and the command), then `table4.md` and `table4.json` are regenerated from every result
+present, so a killed run loses at most the piece it was on. It writes files and commits nothing. `--rows`
+takes row names and the groups of `GROUPS` (`peers`: every BoxMOT row; `gt_peers`: those on
+ground-truth boxes). A piece whose fold has no trained detector or re-ID is skipped with the command that
+trains it; run again once it exists. With `--train` the missing model is trained there and then (that
+same command, plus the `--detector-args` or `--reid-args` overrides) and the piece runs after it: one
+command fills whole folds, and being killed loses little: finished training runs are in MLflow and found
+the next time, and a training stopped part-way goes on from its last epoch (`resume=auto` for the
+detector, `resume=true` for the re-ID). A piece already done is recomputed only when it is stale: when the
+settings that change its numbers (`settings_hash`: data, enhancement, detector, re-ID, tracker, motion
+stage, dynamic filter, scoring) differ from those it was made with; `--redo` recomputes the pieces asked
+for anyway (after a change of code rather than of settings). Stale cells are starred in `table4.md`.
 
-    python experiments/table4_mota/run.py --folds 1 --train --commit threads=1 \
+    python experiments/table4_mota/run.py --folds 1 --train threads=1 \
         --detector-args "train.threads=1" --reid-args "train_reid.threads=1"
 """
 
@@ -33,8 +35,12 @@ from pathlib import Path
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
+from tqdm import tqdm
 
 from spacetrack.config import REPO_ROOT, compose_config, resolved_dict
+from spacetrack.data.layout import load_manifest, read_mot, split_sequences
+from spacetrack.evaluation import evaluate
+from spacetrack.evaluation.mot import scored_rows
 from spacetrack.io import atomic_write_text
 from spacetrack.pipeline.cache import config_hash
 from spacetrack.pipeline.runner import filter_mode
@@ -77,7 +83,33 @@ ROWS: dict[str, tuple[str, list[str]]] = {
     "gt_sort_nofilter": ("ground-truth boxes, SORT, no dynamic-target filter", GT + ["tracker=sort", "reid.weights=none"] + NOFILTER),
     "gt_sort_track": ("ground-truth boxes, SORT, track-level decision (online)", GT + ["tracker=sort", "reid.weights=none"] + TRACK),
 }  # fmt: skip
-SHOWN = ("mota", "idf1", "motp", "idsw", "fp", "fn")
+# BoxMOT's trackers (`make peers`) with BoxMOT's default settings, in the pipeline of the DeepSORT rows they
+# stand beside: on ground-truth boxes that of `gt_deepsort_original` (track-level decision, our camera shift
+# for its evidence, the matched detection's box), on a detector that of `yolo_deepsort_original`. The peers
+# that match by appearance get our re-ID features; ByteTrack and OC-SORT take none.
+PEERS = {"bytetrack": "ByteTrack", "ocsort": "OC-SORT", "botsort": "BoT-SORT (its camera-motion compensation)",
+         "strongsort": "StrongSORT", "deepocsort": "Deep OC-SORT"}  # fmt: skip
+APPEARANCE = {"botsort", "strongsort", "deepocsort"}
+
+
+def _peer_rows(prefix: str, where: str, base: list[str], pipeline: list[str], reid: list[str]) -> dict:
+    return {
+        f"{prefix}_{peer}": (
+            f"{where}, BoxMOT {name}, its defaults",
+            base + [f"tracker={peer}"] + pipeline + (reid if peer in APPEARANCE else ["reid.weights=none"]),
+        )
+        for peer, name in PEERS.items()
+    }
+
+
+ROWS |= _peer_rows("gt", "ground-truth boxes", GT, TRACK, SHIPPED_REID)
+ROWS |= _peer_rows("yolo", "plain YOLOv5s", YOLO, PAPER_FILTER, [])
+ROWS |= _peer_rows("gam", "YOLOv5s + GAM + DWT/HSV", GAM, PAPER_FILTER, [])
+GROUPS = {
+    "peers": [r for r in ROWS if r.split("_", 1)[1] in PEERS],
+    "gt_peers": [f"gt_{peer}" for peer in PEERS],
+}
+SHOWN = ("mota", "hota", "deta", "assa", "idf1", "motp", "idsw", "fp", "fn")
 # The parts of conf/track.yaml that change a piece's numbers, and keys within them that change only speed.
 RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic", "dynamic_hold",
                "dynamic_filter", "dynamic_track", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
@@ -145,11 +177,13 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
 
     overrides = piece_overrides(row, fold, common)
     started = time.time()
-    metrics = track.run(compose_config("track", overrides))
+    cfg = compose_config("track", overrides)
+    metrics = track.run(cfg)
     return {
         "row": row,
         "fold": fold,
         "metrics": metrics,
+        "sequences": sequence_scores(cfg),
         "settings": settings_hash(overrides),
         "code": _git("rev-parse", "--short", "HEAD"),
         # code and settings files that differed from that commit when the piece ran
@@ -161,6 +195,24 @@ def run_piece(row: str, fold: int, common: list[str]) -> dict:
         if torch.cuda.is_available()
         else f"CPU ({platform.processor() or platform.machine()})",
     }
+
+
+def sequence_scores(cfg: DictConfig) -> dict[str, dict]:
+    """{sequence: its scenario, counted ground-truth boxes and `SHOWN` metrics} of the fold `cfg` tracked,
+    scored again from the MOT files the piece wrote (`track.run` returns the fold's pooled scores)."""
+    root = Path(cfg.dataset)
+    manifest = load_manifest(root)
+    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
+    scoring = {"iou_threshold": cfg.iou_threshold, "min_visibility": cfg.min_visibility}
+    out = {}
+    for name in split_sequences(manifest, cfg.fold)[1]:
+        gt, hyp = read_mot(root / name / "gt" / "gt.txt"), read_mot(Path(cfg.output_dir) / f"{name}.txt")
+        if cfg.max_frames:
+            gt = gt[gt[:, 0] <= cfg.max_frames]
+        metrics = evaluate({name: (gt, hyp)}, **scoring)[name]
+        counted = int(scored_rows(gt, hyp, **scoring)[0].sum())
+        out[name] = {"scenario": scenario[name], "gt_boxes": counted} | {m: metrics[m] for m in SHOWN}
+    return out
 
 
 # How each training module picks up a run that was stopped part-way (a no-op when there is none).
@@ -213,6 +265,85 @@ def current_settings(common: list[str]) -> dict[str, str]:
     return {row: settings_hash(piece_overrides(row, 0, common)) for row in ROWS}
 
 
+def _mean(done: dict[int, dict], metric: str) -> float | None:
+    """Mean of `metric` over the folds whose record has it (those made before HOTA have none)."""
+    values = [d["metrics"][metric] for d in done.values() if metric in d["metrics"]]
+    return float(np.mean(values)) if values else None
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f}"
+
+
+def scenario_scores(done: dict[int, dict]) -> dict[str, dict[str, float]]:
+    """{scenario: pooled MOTA, HOTA, IDF1 and the sequence count} over the folds' per-sequence scores.
+
+    MOTA pools exactly (1 - the summed FN + FP + IDSW over the summed counted ground-truth boxes); HOTA
+    and IDF1 are the sequences' values weighted by their counted boxes."""
+    out: dict[str, dict[str, float]] = {}
+    sequences = [s for d in done.values() for s in d.get("sequences", {}).values()]
+    for scenario in sorted({s["scenario"] for s in sequences}):
+        part = [s for s in sequences if s["scenario"] == scenario]
+        boxes = sum(s["gt_boxes"] for s in part)
+        errors = sum(s["fn"] + s["fp"] + s["idsw"] for s in part)
+        out[scenario] = {
+            "mota": 1 - errors / boxes if boxes else float("nan"),
+            **{m: sum(s[m] * s["gt_boxes"] for s in part) / boxes if boxes else float("nan") for m in ("hota", "idf1")},
+            "sequences": len(part),
+        }  # fmt: skip
+    return out
+
+
+def _fold_table(results: dict, stale: set, metric: str, num_folds: int, tail: list[str]) -> list[str]:
+    """A markdown table of `metric` per fold for each row with a result that has it, then `tail` columns."""
+    lines = [
+        "| row | " + " | ".join(f"fold {k}" for k in range(num_folds)) + " | mean ± std | " + " | ".join(tail) + " |",
+        "|---|" + "---|" * (num_folds + 1 + len(tail)),
+    ]  # fmt: skip
+    for row, (title, _) in ROWS.items():
+        done = {k: d for k, d in results.get(row, {}).items() if metric in d["metrics"]}
+        if not done:
+            continue
+        values = [done[k]["metrics"][metric] for k in sorted(done)]
+        cells = [
+            _pct(done[k]["metrics"][metric]) + ("*" if (row, k) in stale else "") if k in done else "-"
+            for k in range(num_folds)
+        ]
+        full = results[row]
+        extra = {
+            "MOTA mean": _pct(_mean(full, "mota")), "HOTA mean": _pct(_mean(full, "hota")),
+            "DetA mean": _pct(_mean(full, "deta")), "AssA mean": _pct(_mean(full, "assa")),
+            "IDF1 mean": _pct(_mean(full, "idf1")),
+            **{m.upper(): f"{sum(d['metrics'][m] for d in full.values()):.0f}" for m in ("idsw", "fp", "fn")},
+        }  # fmt: skip
+        lines.append(
+            f"| `{row}`: {title} | " + " | ".join(cells)
+            + f" | {100 * np.mean(values):.1f} ± {100 * np.std(values):.1f} ({len(values)} folds) | "
+            + " | ".join(extra[c] for c in tail) + " |"
+        )  # fmt: skip
+    return lines
+
+
+def _scenario_table(summary: dict) -> list[str]:
+    rows = {row: s["scenarios"] for row, s in summary.items() if s["scenarios"]}
+    scenarios = sorted({name for per in rows.values() for name in per})
+    if not rows:
+        return []
+    lines = [
+        "## MOTA / HOTA per scenario",
+        "",
+        "Pooled over the folds each row has per-sequence scores for (MOTA exactly, HOTA weighted by the",
+        "sequences' ground-truth boxes); in %.",
+        "",
+        "| row | " + " | ".join(scenarios) + " | folds |",
+        "|---|" + "---|" * (len(scenarios) + 1),
+    ]
+    for row, per in rows.items():
+        cells = [f"{_pct(per[n]['mota'])} / {_pct(per[n]['hota'])}" if n in per else "-" for n in scenarios]
+        lines.append(f"| `{row}` | " + " | ".join(cells) + f" | {summary[row]['scenario_folds']} |")
+    return lines
+
+
 def write_tables(num_folds: int = 9, current: dict[str, str] | None = None) -> list[Path]:
     """table4.md and table4.json from every result present; returns their paths. A cell made with other
     settings than `current` (default: `current_settings([])`) is starred."""
@@ -225,51 +356,50 @@ def write_tables(num_folds: int = 9, current: dict[str, str] | None = None) -> l
         if r.get("settings") != current.get(row)
     }
     summary = {}
-    lines = [
-        "# Table 4: MOTA per validation fold",
-        "",
-        "Regenerate with `make table4` (= `python experiments/table4_mota/run.py`); each cell is one",
-        "fold's sequences tracked with that fold's own models (never trained on them). `-`: not run yet.",
-        "What each row's models were, and why some cells are missing, is in README.md.",
-        "",
-        "| row | "
-        + " | ".join(f"fold {k}" for k in range(num_folds))
-        + " | mean ± std | IDF1 mean | IDSW | FP | FN |",
-        "|---|" + "---|" * (num_folds + 5),
-    ]
     for row, (title, _) in ROWS.items():
         done = results.get(row, {})
         if not done:
             continue
         mota = [done[k]["metrics"]["mota"] for k in sorted(done)]
-        cells = [
-            f"{100 * done[k]['metrics']['mota']:.1f}" + ("*" if (row, k) in stale else "")
-            if k in done
-            else "-"
-            for k in range(num_folds)
-        ]
-        totals = {m: sum(d["metrics"][m] for d in done.values()) for m in ("idsw", "fp", "fn")}
-        idf1 = float(np.mean([d["metrics"]["idf1"] for d in done.values()]))
+        first = next(iter(done.values()))
         summary[row] = {
             "title": title,
-            "folds": {k: {m: done[k]["metrics"][m] for m in SHOWN} for k in sorted(done)},
+            "folds": {k: {m: done[k]["metrics"].get(m) for m in SHOWN} for k in sorted(done)},
             "mota_mean": float(np.mean(mota)),
             "mota_std": float(np.std(mota)),
-            "idf1_mean": idf1,
-            **totals,
-            "command": _command_template(next(iter(done.values()))),
-            "profile": next(iter(done.values()))["profile"],
+            **{f"{m}_mean": _mean(done, m) for m in ("hota", "deta", "assa", "idf1")},
+            **{m: sum(d["metrics"][m] for d in done.values()) for m in ("idsw", "fp", "fn")},
+            "scenarios": scenario_scores(done),
+            "scenario_folds": sum("sequences" in d for d in done.values()),
+            "command": _command_template(first),
+            "profile": first["profile"],
         }
-        lines.append(
-            f"| `{row}`: {title} | " + " | ".join(cells)
-            + f" | {100 * np.mean(mota):.1f} ± {100 * np.std(mota):.1f} ({len(mota)} folds) | {100 * idf1:.1f}"
-            + f" | {totals['idsw']:.0f} | {totals['fp']:.0f} | {totals['fn']:.0f} |"
-        )  # fmt: skip
-    lines += ["", "MOTA and IDF1 in %; IDSW, FP and FN summed over the folds shown."]
+    lines = [
+        "# Table 4: MOTA and HOTA per validation fold",
+        "",
+        "Regenerate with `make table4` (= `python experiments/table4_mota/run.py`; `make table4 ROWS=peers`",
+        "for BoxMOT's trackers); each cell is one fold's sequences tracked with that fold's own models (never",
+        "trained on them). `-`: not run yet. What each row's models were, and why some cells are missing, is",
+        "in README.md.",
+        "",
+        "## MOTA",
+        "",
+        *_fold_table(results, stale, "mota", num_folds, ["HOTA mean", "IDF1 mean", "IDSW", "FP", "FN"]),
+        "",
+        "MOTA, HOTA and IDF1 in %; IDSW, FP and FN summed over the folds shown. HOTA mean: over the folds",
+        "whose piece was made since HOTA is scored (TrackEval; `-`: none yet).",
+        "",
+        "## HOTA",
+        "",
+        *_fold_table(results, stale, "hota", num_folds, ["DetA mean", "AssA mean", "MOTA mean"]),
+        "",
+        *_scenario_table(summary),
+    ]
     if stale:
         lines += [
+            "",
             f"*: {len(stale)} cells were made with other settings than the current config; "
-            "`python experiments/table4_mota/run.py` recomputes them."
+            "`python experiments/table4_mota/run.py` recomputes them.",
         ]
     lines += ["", "Commands per row:", ""]
     lines += [f"- `{row}`: `{s['command']}` ({s['profile']})" for row, s in summary.items()]
@@ -279,51 +409,41 @@ def write_tables(num_folds: int = 9, current: dict[str, str] | None = None) -> l
     return [md, js]
 
 
-def commit(paths: list[Path], message: str) -> None:
-    rel = [str(p.relative_to(REPO_ROOT)) for p in paths]
-    for _ in range(10):  # others commit to the same checkout: wait out their index lock
-        added = subprocess.run(["git", "-C", str(REPO_ROOT), "add", *rel], capture_output=True, text=True)
-        if added.returncode == 0:
-            done = subprocess.run(
-                ["git", "-C", str(REPO_ROOT), "commit", "-q", "-m", message, "--", *rel],
-                capture_output=True,
-                text=True,
-            )
-            if done.returncode == 0 or "nothing to commit" in done.stdout:
-                return
-        time.sleep(3)
-    print(f"could not commit {rel}", file=sys.stderr)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--rows", default=",".join(ROWS), help="comma-separated rows (default: all)")
+    parser.add_argument(
+        "--rows", default=",".join(ROWS), help=f"comma-separated rows or groups {list(GROUPS)} (default: all)"
+    )
     parser.add_argument("--folds", default="0-8", help="'0-8' or '1,3'")
-    parser.add_argument("--commit", action="store_true", help="git-commit each finished piece's files")
     parser.add_argument("--redo", action="store_true", help="recompute pieces already done and current")
     parser.add_argument("--train", action="store_true", help="train a piece's missing models, then run it")
     parser.add_argument("--detector-args", default="", help="extra overrides for detector training")
     parser.add_argument("--reid-args", default="", help="extra overrides for re-ID training")
     parser.add_argument("overrides", nargs="*", help="extra track.yaml overrides for every piece")
     args = parser.parse_args()
-    unknown = [r for r in args.rows.split(",") if r not in ROWS]
+    rows = [r for name in args.rows.split(",") for r in GROUPS.get(name, [name])]
+    unknown = [r for r in rows if r not in ROWS]
     if unknown:
-        parser.error(f"unknown rows {unknown}; known: {list(ROWS)}")
+        parser.error(f"unknown rows {unknown}; known: {list(ROWS)} and the groups {list(GROUPS)}")
     train_args = None
     if args.train:
         train_args = {"spacetrack.train": args.detector_args.split(),
                       "spacetrack.train_reid": args.reid_args.split()}  # fmt: skip
     missing = []
     settings = current_settings(args.overrides)  # composed once, not after every piece
-    for row in args.rows.split(","):
+    # a bar over the pieces to compute (the rate and the time left); pieces already current leave its total
+    bar = tqdm(total=len(rows) * len(folds_arg(args.folds)), desc="Table 4", unit="piece")
+    for row in rows:
         current = settings[row]
         for fold in folds_arg(args.folds):
             path = RESULTS / row / f"fold{fold}.json"
             if path.is_file() and not args.redo:
                 made_with = json.loads(path.read_text()).get("settings")
                 if made_with == current:
+                    bar.total -= 1
+                    bar.refresh()
                     continue
                 print(
                     f"{row} fold {fold} is stale (settings {made_with} -> {current}): recomputing", flush=True
@@ -333,13 +453,15 @@ def main() -> None:
             except MissingWeightsError as err:
                 missing.append(f"{row} fold {fold}: {err}")
                 print(f"skipped {row} fold {fold}: {err}", flush=True)
+                bar.update()
                 continue
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, json.dumps(record, indent=2) + "\n")
-            tables = write_tables(current=settings)
-            print(f"{row} fold {fold}: MOTA {record['metrics']['mota']:.4f}", flush=True)
-            if args.commit:
-                commit([path, *tables], f"Table 4: {row}, fold {fold}")
+            write_tables(current=settings)
+            m = record["metrics"]
+            print(f"{row} fold {fold}: MOTA {m['mota']:.4f}, HOTA {m['hota']:.4f}", flush=True)
+            bar.update()
+    bar.close()
     write_tables(current=settings)
     if missing:
         print(f"{len(missing)} pieces wait for trained models:\n" + "\n".join(missing))

@@ -78,7 +78,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     """
     sources = select_sources(cfg)
     weights = resolve_weights(cfg)
-    if weights.reid is None and cfg.tracker.max_cosine_distance is not None:
+    if weights.reid is None and cfg.tracker.get("max_cosine_distance") is not None:
         raise ValueError(
             "reid.weights=none gives no appearance features, but the tracker matches by appearance; "
             "use tracker=sort (or tracker.max_cosine_distance=null)"

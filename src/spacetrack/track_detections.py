@@ -33,7 +33,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     if not output.parent.is_dir():
         raise FileNotFoundError(f"output folder {output.parent} does not exist (writing {output.name})")
     dets = load_detections(cfg.detections)
-    if dets.shape[1] == len(DETECTION_COLUMNS) and cfg.tracker.max_cosine_distance is not None:
+    if dets.shape[1] == len(DETECTION_COLUMNS) and cfg.tracker.get("max_cosine_distance") is not None:
         raise DetectionFileError(
             f"{cfg.detections}: no appearance features (10 columns), but the tracker matches by "
             "appearance; use tracker=sort (or tracker.max_cosine_distance=null) for boxes alone"
