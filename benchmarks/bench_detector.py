@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from common import interleaved_samples, markdown_table, summarize, time_call, write_report
+from common import interleaved_samples, markdown_table, progress, summarize, time_call, write_report
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.optim import build_optimizer
 from spacetrack.models.yolo import YOLOv5, count_parameters
@@ -100,7 +100,7 @@ def training_rate(model, size, batch, device, steps, amp) -> float:
 
     step()
     started = time.perf_counter()
-    for _ in range(steps):
+    for _ in progress(steps, f"training steps, batch {batch}", unit="step"):
         step()
     model.eval()
     return batch * steps / (time.perf_counter() - started)

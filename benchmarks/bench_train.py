@@ -87,9 +87,9 @@ def data_rates(root: Path, size: int, samples: int) -> list[list[object]]:
     rows = []
     for name, data in contenders.items():
         picks = [int(i) for i in np.random.default_rng(0).integers(len(data), size=samples)]
-        for _ in range(2):
+        for n in range(2):
             started = time.perf_counter()
-            for i in picks:
+            for i in tqdm(picks, desc=f"{name[:30]} ({n + 1}/2)", unit="sample", leave=False):
                 data[i]
         rows.append([name, samples / (time.perf_counter() - started)])
     return rows

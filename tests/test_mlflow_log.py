@@ -359,8 +359,9 @@ def test_ui_links_and_pinned_columns(config_dir: Path, store: str, monkeypatch: 
     monkeypatch.setenv("PORT", "5099")
     assert mlflow_ui.ui_base(store) == "http://127.0.0.1:5099"
     assert mlflow_ui.ui_base("http://tracking.example:5000/") == "http://tracking.example:5000"
+    # the runs route itself: the bare experiment route redirects to it and drops the view's key
     assert mlflow_ui.runs_view_url("7", "v1", "http://h:1") == (
-        "http://h:1/#/experiments/7?workflowType=machine_learning&viewStateShareKey=v1"
+        "http://h:1/#/experiments/7/runs?workflowType=machine_learning&viewStateShareKey=v1"
     )
     cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=views")
     with mlflow_log.start_run(cfg, run_name="scored") as run:
@@ -372,6 +373,43 @@ def test_ui_links_and_pinned_columns(config_dir: Path, store: str, monkeypatch: 
     links = dict(mlflow_ui.pin_views(store))
     experiment = mlflow.MlflowClient().get_experiment(run.info.experiment_id)
     assert links["views"] == mlflow_ui.runs_view_url(experiment.experiment_id, mlflow_ui.DEFAULT_VIEW, store)
-    view = json.loads(experiment.tags[mlflow_ui.VIEW_TAG + mlflow_ui.DEFAULT_VIEW])
+    # the envelope the UI's "Save view" writes: listed under "Views" by name, the state as a JSON string
+    envelope = json.loads(experiment.tags[mlflow_ui.VIEW_TAG + mlflow_ui.DEFAULT_VIEW])
+    assert envelope["name"] == mlflow_ui.DEFAULT_VIEW_NAME and isinstance(envelope["createdAt"], int)
+    view = json.loads(envelope["state"])
+    assert view == mlflow_ui.load_view(experiment.tags, mlflow_ui.DEFAULT_VIEW)
     assert view["selectedColumns"] == ["metrics.`mota`", "metrics.`idf1`"]  # headline metrics it logged
     assert view["orderByKey"] == "attributes.start_time" and view["orderByAsc"] is False
+    assert view["columnOrder"] == [mlflow_ui.RUN_NAME_COLUMN, "metrics.`mota`", "metrics.`idf1`"]
+    assert view["columnWidths"] == {mlflow_ui.RUN_NAME_COLUMN: mlflow_ui.NAME_WIDTH[0]}  # "scored" is short
+
+
+def test_a_sweep_view_is_named_after_the_sweep_and_fits_its_names(config_dir: Path, store: str) -> None:
+    from spacetrack import mlflow_ui
+
+    cfg = make_cfg(config_dir, f"logger.tracking_uri={store}", "logger.experiment=sweep_view")
+    swept = {"swept": "tracker.max_age,tracker.n_init"}
+    with mlflow_log.start_run(cfg, run_name="sweep", tags=swept) as parent:
+        pass
+    long_name = "max_age=30 n_init=3" * 3
+    with mlflow_log.start_run(cfg, run_name=long_name, parent_run_id=parent.info.run_id):
+        pass
+    client = mlflow.MlflowClient()
+    key, experiment_id = parent.info.run_id, parent.info.experiment_id
+    columns = ["params.`tracker.max_age`", "metrics.`mota`", "params.`tracker.n_init`", "metrics.`idf1`"]
+    only_points = f"tags.`{mlflow_log.PARENT_RUN_TAG}` = '{key}'"
+    mlflow_ui.save_view(client, experiment_id, key, columns=columns, search_filter=only_points)
+    envelope = json.loads(client.get_experiment(experiment_id).tags[mlflow_ui.VIEW_TAG + key])
+    assert envelope["name"].startswith("sweep ") and envelope["name"].endswith(": max_age x n_init")
+    view = mlflow_ui.load_view(client.get_experiment(experiment_id).tags, key)
+    assert view["selectedColumns"] == columns and view["searchFilter"] == only_points
+    # metrics first, as the table groups them, then params; the name column as wide as the points' names
+    assert view["columnOrder"] == [mlflow_ui.RUN_NAME_COLUMN, *columns[1::2], *columns[::2]]
+    width = view["columnWidths"][mlflow_ui.RUN_NAME_COLUMN]
+    assert mlflow_ui.NAME_WIDTH[0] < width <= mlflow_ui.NAME_WIDTH[1] and width >= 5 * len(long_name)
+    assert view["columnWidths"]["params.`tracker.max_age`"] >= 100
+    # saved again under another name: created at the same time as before
+    mlflow_ui.save_view(client, experiment_id, key, columns=columns[:2], name="mine")
+    again = json.loads(client.get_experiment(experiment_id).tags[mlflow_ui.VIEW_TAG + key])
+    assert again["name"] == "mine" and again["createdAt"] == envelope["createdAt"]
+    assert mlflow_ui.load_view({mlflow_ui.VIEW_TAG + "old": json.dumps(view)}, "old") == view  # bare state

@@ -115,7 +115,7 @@ def test_sweep_from_the_command_line_is_readable_in_mlflow(smoke_dataset, tmp_pa
     url = line.split("| MLflow: ")[1].split()[0]
     key = parent.info.run_id
     assert url == mlflow_ui.runs_view_url(experiment.experiment_id, key, store) and url in note
-    view = json.loads(client.get_experiment(experiment.experiment_id).tags[mlflow_ui.VIEW_TAG + key])
+    view = mlflow_ui.load_view(client.get_experiment(experiment.experiment_id).tags, key)
     assert view["searchFilter"] == f"tags.`{PARENT_RUN_TAG}` = '{key}'"
     assert view["selectedColumns"][:3] == [
         "params.`tracker.max_iou_distance`", "params.`tracker.max_age`", "metrics.`mota`",
