@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 from dataclasses import asdict
 from pathlib import Path
@@ -27,12 +26,10 @@ import cv2
 import numpy as np
 from hydra.utils import instantiate
 
+from common import interleaved_samples, markdown_table, summarize, write_report
 from spacetrack.config import compose_config
 from spacetrack.enhance import DwtHsvEnhancer
 from spacetrack.enhance import dwt_hsv as stages
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import interleaved_samples, markdown_table, summarize, write_report  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 

@@ -19,19 +19,15 @@ the paper's numbers).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 from hydra.utils import instantiate
 
+from common import markdown_table, progress, summarize, write_report
 from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.io import atomic_write_text
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import markdown_table, progress, summarize, write_report  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 PEER = "mog2"

@@ -19,19 +19,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
-from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from common import interleaved_samples, markdown_table, summarize, write_report
 from spacetrack.reid import Cropper, Encoder, ReidNet
 from spacetrack.reid.crops import frame_tensor
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import interleaved_samples, markdown_table, summarize, write_report  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 

@@ -23,7 +23,6 @@ OpenBLAS can stall a 4x4 triangular solve for milliseconds, which would time the
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from importlib.metadata import version
 from pathlib import Path
@@ -32,14 +31,12 @@ import numpy as np
 import scipy.linalg  # noqa: F401  (loaded before pinning, so its BLAS is pinned too)
 from threadpoolctl import threadpool_limits
 
+from common import markdown_table, summarize, time_call, write_report
 from spacetrack.data.layout import BOX, CONF, read_mot
 from spacetrack.evaluation import evaluate
 from spacetrack.track_detections import rows_as_mot
 from spacetrack.tracking import DeepSort
 from spacetrack.tracking.io import FEATURES, iter_frames, load_detections
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import markdown_table, summarize, time_call, write_report  # noqa: E402
 
 SETTINGS = dict(max_cosine_distance=0.2, nn_budget=100, max_iou_distance=0.7, max_age=70, n_init=3)
 FEATURE_DIM = 128

@@ -6,15 +6,12 @@ from collections import Counter
 from pathlib import Path
 
 import cv2
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_name, read_mot, read_rgb  # noqa: E402
-from spacetrack.viz.draw import draw_boxes  # noqa: E402
-from spacetrack.viz.sheet import contact_sheet  # noqa: E402
+from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_name, read_mot, read_rgb
+from spacetrack.viz.draw import draw_boxes
+from spacetrack.viz.sheet import contact_sheet
 
 
 def occlusion_events(records: list[dict]) -> tuple[int, int]:
@@ -68,7 +65,8 @@ def _quantiles(x: np.ndarray) -> dict[str, float]:
 
 def plot_distributions(records: list[dict], path: Path) -> None:
     labelled = [r for r in records if r["labelled"]]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+    fig = Figure(figsize=(10, 3.5))
+    axes = fig.subplots(1, 2)
     axes[0].hist([np.sqrt(r["w"] * r["h"]) for r in labelled], bins=40, color="tab:blue")
     axes[0].set(xlabel="box size sqrt(w*h) [px]", ylabel="labels", title="Box sizes (labelled targets)")
     axes[1].hist(
@@ -77,7 +75,6 @@ def plot_distributions(records: list[dict], path: Path) -> None:
     axes[1].set(xlabel="visibility", ylabel="ground-truth rows", title="Visibility (moving targets)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def write_contact_sheet(

@@ -6,15 +6,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import cv2
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from spacetrack.io import atomic_path  # noqa: E402
-from spacetrack.viz.draw import draw_boxes  # noqa: E402
-from spacetrack.viz.sheet import contact_sheet  # noqa: E402
+from spacetrack.io import atomic_path
+from spacetrack.viz.draw import draw_boxes
+from spacetrack.viz.sheet import contact_sheet
 
 GT_COLOR = (0, 255, 0)
 PRED_COLOR = (255, 64, 64)
@@ -24,7 +21,8 @@ def plot_pr_curves(
     curves: Mapping[int, tuple[np.ndarray, np.ndarray]], class_names: Sequence[str], path: str | Path
 ) -> None:
     """PNG of precision against recall at IoU 0.5, one line per class with ground truth."""
-    fig, ax = plt.subplots(figsize=(5, 4), dpi=100)
+    fig = Figure(figsize=(5, 4), dpi=100)
+    ax = fig.subplots()
     for cls, (recall, precision) in sorted(curves.items()):
         ax.plot(np.r_[0, recall], np.r_[1, precision], label=class_names[cls])
     ax.set(xlabel="recall", ylabel="precision", xlim=(0, 1), ylim=(0, 1.02), title="validation, IoU 0.5")
@@ -32,7 +30,6 @@ def plot_pr_curves(
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
-    plt.close(fig)
 
 
 def prediction_grid(

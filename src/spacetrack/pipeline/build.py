@@ -103,7 +103,7 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
     detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in SPEED_ONLY_KEYS}
     if "backend" in detector:  # the backend that runs ("auto" resolved on the device)
         detector["backend"] = check_backend(detector["backend"], resolve_device(cfg.detector.device).type)
-        if detector["backend"] == "torch":  # keeps the caches made before the key existed valid
+        if detector["backend"] == "torch":  # the default: a key without a backend is a torch one
             del detector["backend"]
     detector_id = config_hash(detector)
     if weights.detector is not None:

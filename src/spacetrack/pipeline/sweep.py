@@ -18,19 +18,16 @@ import os
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import mlflow
+import numpy as np
+from hydra.core.utils import JobReturn, JobStatus
+from matplotlib.figure import Figure
+from omegaconf import DictConfig
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import mlflow  # noqa: E402
-import numpy as np  # noqa: E402
-from hydra.core.utils import JobReturn, JobStatus  # noqa: E402
-from omegaconf import DictConfig  # noqa: E402
-
-from spacetrack import mlflow_ui  # noqa: E402
-from spacetrack.io import atomic_write_text  # noqa: E402
-from spacetrack.mlflow_log import NOTE_TAG, PARENT_RUN_TAG, point_name  # noqa: E402
-from spacetrack.multirun import MultirunParent  # noqa: E402
+from spacetrack import mlflow_ui
+from spacetrack.io import atomic_write_text
+from spacetrack.mlflow_log import NOTE_TAG, PARENT_RUN_TAG, point_name
+from spacetrack.multirun import MultirunParent
 
 PARENT_ENV = "SPACETRACK_SWEEP_PARENT_RUN_ID"
 SHOWN = ("mota", "idf1", "idsw", "fp", "fn")  # the scores of sweep.md and of the points' table
@@ -63,7 +60,8 @@ def plot_sweep(points: list[dict], keys: list[str], metric: str, path: Path) -> 
     """Heatmap of `metric` over two swept keys, or bars over one; False (nothing drawn) otherwise."""
     if len(keys) not in (1, 2):
         return False
-    fig, ax = plt.subplots(figsize=(5.5, 4.2))
+    fig = Figure(figsize=(5.5, 4.2))
+    ax = fig.subplots()
     if len(keys) == 1:
         labels = [str(p["overrides"][keys[0]]) for p in points]
         values = [p["metrics"].get(metric, np.nan) for p in points]
@@ -93,7 +91,6 @@ def plot_sweep(points: list[dict], keys: list[str], metric: str, path: Path) -> 
     ax.set_title(f"{metric} per {keys[0]}" if len(keys) == 1 else f"{metric} per sweep point")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return True
 
 

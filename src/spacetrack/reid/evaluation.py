@@ -114,14 +114,12 @@ def plot_distances(
     arrays: dict[str, np.ndarray], thresholds: Sequence[float], path: str | Path, title: str = ""
 ) -> None:
     """Histograms of same- vs different-identity cosine distances (pairs; eq. 13 galleries) with the gates."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from spacetrack.io import atomic_path
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True)
+    fig = Figure(figsize=(11, 4))
+    axes = fig.subplots(1, 2, sharex=True)
     bins = np.linspace(0, max(1.0, *(a.max() for a in arrays.values() if len(a))), 81)
     for ax, kind, label in zip(
         axes, ("pair", "gallery"), ("all pairs", "eq. 13 gallery minimum"), strict=True
@@ -144,4 +142,3 @@ def plot_distances(
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or "png", dpi=110)
-    plt.close(fig)

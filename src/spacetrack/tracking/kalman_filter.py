@@ -14,9 +14,8 @@ import numpy as np
 # 0.95 quantile of the chi-square distribution with 4 degrees of freedom: eq. (12)'s gate t(1).
 CHI2_95_4DOF = 9.4877
 
-_NDIM = 4
+_NDIM = 4  # the filter observes (x, y, a, h) directly: H = [I 0], applied by slicing the state
 _MOTION = np.eye(2 * _NDIM) + np.eye(2 * _NDIM, k=_NDIM)  # F of eq. (5) with dt = 1 frame
-_OBSERVE = np.eye(_NDIM, 2 * _NDIM)  # H: the filter observes (x, y, a, h) directly
 _STD_POSITION = 1.0 / 20
 _STD_VELOCITY = 1.0 / 160
 
