@@ -21,8 +21,16 @@ def smoke_dataset(tmp_path_factory) -> Path:
 
 
 @pytest.fixture
+def tiny_dataset(tmp_path) -> Path:
+    """A hand-made detector dataset of a few frames (see `detector_helpers.write_tiny_dataset`)."""
+    from detector_helpers import write_tiny_dataset
+
+    return write_tiny_dataset(tmp_path / "tiny")
+
+
+@pytest.fixture
 def one_torch_thread():
-    """torch on one CPU thread for the test, then as before: on a crowded machine tracing or building a
+    """torch on one CPU thread for the test, then as it was: on a crowded machine tracing or building a
     model on two threads can be many times slower than on one."""
     import torch
 

@@ -1,6 +1,5 @@
 import pytest
 import torch
-from detector_helpers import write_tiny_dataset
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -10,8 +9,3 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
-
-
-@pytest.fixture
-def tiny_dataset(tmp_path):
-    return write_tiny_dataset(tmp_path / "tiny")
