@@ -50,8 +50,33 @@ def load_boxmot() -> Any:
             f"BoxMOT {found} is installed, but spacetrack.tracking.peers is written against BoxMOT "
             f"{BOXMOT_VERSION} (its tracker interface changes between releases): `make peers` installs it"
         )
-    logging.getLogger("boxmot").setLevel(logging.WARNING)  # it logs every tracker's settings at INFO
     return boxmot
+
+
+class _OncePerMessage(logging.Filter):
+    """Let each distinct message through once: BoT-SORT warns on every frame whose ECC does not converge."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if message in self.seen:
+            return False
+        self.seen.add(message)
+        return True
+
+
+_ONCE = _OncePerMessage()
+
+
+def _quiet_boxmot() -> None:
+    """BoxMOT's logger at WARNING (it logs every tracker's settings at INFO), each message once."""
+    logger = logging.getLogger("boxmot")
+    logger.setLevel(logging.WARNING)
+    if _ONCE not in logger.filters:
+        logger.addFilter(_ONCE)
 
 
 def create_peer(peer: str) -> Any:
@@ -62,6 +87,7 @@ def create_peer(peer: str) -> Any:
     from boxmot.trackers.factory import create_tracker
     from boxmot.trackers.specs import TrackerSpec
 
+    _quiet_boxmot()  # after the imports: BoxMOT sets its logger up when they first load it
     return create_tracker(TrackerSpec(name=peer))
 
 
