@@ -8,7 +8,7 @@ ARGS ?=
 
 .DEFAULT_GOAL := help
 .PHONY: help install peers demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
-.PHONY: track-detections evaluate bench-tracker
+.PHONY: track-detections evaluate bench-tracker bench-peers
 .PHONY: train cv bench-detector pretrain detector-cv bench-train
 .PHONY: eval-motion bench-motion
 .PHONY: train-reid cv-reid bench-reid
@@ -74,6 +74,9 @@ evaluate: $(STAMP) ## score MOT results against a gt.txt: ARGS="results=OUT.txt 
 
 bench-tracker: $(STAMP) ## time the tracker per frame at 5/20/100 targets vs deep-sort-realtime -> reports/tracker.json
 	$(PY) benchmarks/bench_tracker.py $(ARGS)
+
+bench-peers: $(STAMP) ## time BoxMOT's trackers per frame against our DeepSORT in one run (after make peers) -> reports/peers.json
+	$(PY) benchmarks/bench_peers.py $(ARGS)
 
 FOLD ?= 3
 DEFAULT_DATA := data/space_default
