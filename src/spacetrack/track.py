@@ -27,6 +27,7 @@ from spacetrack.pipeline.runner import SequenceResult, build_tracker, filter_mod
 from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.track_detections import rows_as_mot
+from spacetrack.tracking.offline import OfflineSettings
 
 log = logging.getLogger(__name__)
 SCORES = ("hota", "deta", "assa", "mota", "motp", "idf1", "idsw", "fp", "fn", "mt", "ml", "precision", "recall")  # fmt: skip
@@ -67,6 +68,16 @@ def cache_folder(cfg: DictConfig) -> Path:
     if cfg.reid.weights == "none":
         kind += "-noreid"
     return Path(cfg.cache.dir) / kind
+
+
+def offline_settings(cfg: DictConfig) -> OfflineSettings | None:
+    """`offline` of conf/track.yaml as the post-processing settings, or None when it is off."""
+    offline = cfg.get("offline")
+    if offline is None or not offline.enabled:
+        return None
+    return OfflineSettings(
+        backfill=bool(offline.backfill), max_gap=offline.max_gap, smooth_frames=offline.smooth_frames
+    )
 
 
 def run(cfg: DictConfig) -> dict[str, float]:
@@ -114,6 +125,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
                 key=cache_key(cfg, weights, source),
                 mode=mode,
                 hold=DynamicHold(**cfg.dynamic_hold) if mode == "frame" else None,
+                offline=offline_settings(cfg),
                 out_dir=out_dir,
                 video=cfg.video,
                 progress=cfg.progress,

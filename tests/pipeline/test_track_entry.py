@@ -223,3 +223,19 @@ def test_the_video_draws_apart_exactly_the_static_boxes(smoke_dataset, tmp_path,
         parked = static[static[:, 0] == frame, 2:6]
         for box in boxes:  # every box drawn as static is a parked object of that frame
             assert np.abs(parked - box).max(axis=1).min() < 1e-6, (frame, box)
+
+
+def test_offline_post_processing_only_adds_rows_and_closes_the_confirmation_gap(smoke_dataset, tmp_path):
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", "tracker.n_init=5",
+              "sequence=all", "video=false"]  # fmt: skip
+    online = track.run(track_config(smoke_dataset, tmp_path / "on", *common))
+    offline = track.run(track_config(smoke_dataset, tmp_path / "off", *common, "offline.enabled=true"))
+    for mot in sorted((tmp_path / "on" / "out").glob("*.txt")):
+        before = {tuple(r[:2]) for r in np.loadtxt(mot, delimiter=",", ndmin=2)}
+        after = {
+            tuple(r[:2]) for r in np.loadtxt(tmp_path / "off" / "out" / mot.name, delimiter=",", ndmin=2)
+        }
+        assert before <= after, mot.name  # every online (frame, id) stays
+    # the first n_init - 1 frames of each track come back: fewer misses, no more false positives
+    assert offline["fn"] < online["fn"] and offline["fp"] <= online["fp"]
+    assert offline["mota"] > online["mota"]

@@ -149,33 +149,77 @@ def run_source(
     """
     started = time.perf_counter()
     cached = cache.load(source.name, key) if cache is not None else None
-    recorded: list[FrameDetections] = []
-    timer = StageTimer()
-    images = video or tracker.needs_images
     rerun_motion = cached is not None and cached.blobs is None  # made with other motion settings
-    if rerun_motion:  # the motion stage alone, in step with the tracker
-        motion_stream = make_motion_stream()
-        timer = motion_stream.timer
-        stream: Iterator[FrameDetections] = cached_frames(
-            cached, dynamic_filter, motion=motion_stream.run(source, keep_images=images)
-        )
-    elif cached is not None:
-        stream = cached_frames(cached, dynamic_filter, source if images else None)
-    else:
-        detection_stream = make_stream()
-        timer = detection_stream.timer
-        stream = _recording(detection_stream.run(source, keep_images=images), recorded)
+    images = video or tracker.needs_images
+    stream, timer, recorded = _detections(
+        source, cached, make_stream, make_motion_stream, dynamic_filter, keep_images=images
+    )
     # A live source has no length: the bar then shows the frame count and the live frame rate.
     bar = tqdm(
         stream, total=source.num_frames, desc=source.name, unit="frame", disable=not progress, leave=False
     )
+    mot_path, video_path = out_dir / f"{source.name}.txt", out_dir / f"{source.name}.mp4"
+    rows_out, num_frames = _track(
+        bar, source, tracker, mode, hold, timer, video_path=video_path if video else None
+    )
+    write_mot_results(mot_path, rows_out)
+    if cache is not None:
+        _update_cache(cache, source.name, key, cached, recorded, rerun_motion, num_frames)
+    return SequenceResult(
+        name=source.name,
+        rows=rows_out,
+        num_frames=num_frames,
+        from_cache=cached is not None,
+        wall_seconds=time.perf_counter() - started,
+        timings=timer.ms_per_frame(num_frames),
+        mot_path=mot_path,
+        video_path=video_path if video and video_path.is_file() else None,
+    )
+
+
+def _detections(
+    source: FrameSource,
+    cached: CachedSequence | None,
+    make_stream: Callable[[], DetectionStream],
+    make_motion_stream: Callable[[], DetectionStream],
+    dynamic_filter: DynamicFilter,
+    *,
+    keep_images: bool,
+) -> tuple[Iterator[FrameDetections], StageTimer, list[FrameDetections]]:
+    """The source's detections frame by frame, the timer of the stages that make them, and the list the
+    frames of a fresh stream are recorded into (for the cache): cached detections as they are, cached
+    detections with the motion stage alone run again (their blobs were made by other motion settings),
+    or the whole stream."""
+    recorded: list[FrameDetections] = []
+    if cached is not None and cached.blobs is None:  # the motion stage alone, in step with the tracker
+        motion_stream = make_motion_stream()
+        motion = motion_stream.run(source, keep_images=keep_images)
+        return cached_frames(cached, dynamic_filter, motion=motion), motion_stream.timer, recorded
+    if cached is not None:
+        return cached_frames(cached, dynamic_filter, source if keep_images else None), StageTimer(), recorded
+    detection_stream = make_stream()
+    stream = _recording(detection_stream.run(source, keep_images=keep_images), recorded)
+    return stream, detection_stream.timer, recorded
+
+
+def _track(
+    frames: Iterable[FrameDetections],
+    source: FrameSource,
+    tracker: DeepSort,
+    mode: str,
+    hold: DynamicHold | None,
+    timer: StageTimer,
+    *,
+    video_path: Path | None,
+) -> tuple[np.ndarray, int]:
+    """Step the tracker through the frames; (rows `frame, id, x, y, w, h` of its output, frames seen).
+    With `video_path`, the annotated frames are written there as they come (replacing it at the end)."""
     annotator, results = Annotator(), []
     if hold is not None:
         hold.reset()
-    mot_path, video_path = out_dir / f"{source.name}.txt", out_dir / f"{source.name}.mp4"
     with ExitStack() as stack:
         writer = None
-        for item in bar:
+        for item in frames:
             keep = _reaching_tracker(item, mode, hold)
             dets = item.rows[keep]
             with timer("tracker"):
@@ -189,7 +233,7 @@ def run_source(
             if hold is not None:
                 hold.update(out)
             results.append(np.column_stack([np.full(len(out), item.frame), out]))
-            if video and item.image is not None:
+            if video_path is not None and item.image is not None:
                 if writer is None:
                     height, width = item.image.shape[:2]
                     writer = stack.enter_context(VideoWriter(video_path, source.fps, (width, height)))
@@ -197,25 +241,25 @@ def run_source(
                 info = f"{source.name} frame {item.frame}  tracks {len(out)}"
                 with timer("draw"):
                     writer.write(annotator(item.image, out, static, info))
-        num_frames = len(results)
-        if num_frames == 0:
+        if not results:
             raise ValueError(f"{source.description}: no frames")
-        rows_out = np.concatenate(results)
-        write_mot_results(mot_path, rows_out)
-    if rerun_motion and cache is not None:
-        cache.save_blobs(source.name, key, cached.blobs)
-    if cached is None and cache is not None:
+        return np.concatenate(results), len(results)
+
+
+def _update_cache(
+    cache: DetectionCache,
+    name: str,
+    key: CacheKey,
+    cached: CachedSequence | None,
+    recorded: list[FrameDetections],
+    rerun_motion: bool,
+    num_frames: int,
+) -> None:
+    """Keep what this run made: a fresh stream's detections and blobs, or the blobs of a motion rerun."""
+    if rerun_motion:
+        cache.save_blobs(name, key, cached.blobs)
+    if cached is None:
         det_rows = np.concatenate([r.rows for r in recorded])
         classes = np.concatenate([r.classes for r in recorded]).astype(np.int64)
-        cache.save(source.name, key, det_rows, classes, num_frames=num_frames)
-        cache.save_blobs(source.name, key, [r.blobs for r in recorded])
-    return SequenceResult(
-        name=source.name,
-        rows=rows_out,
-        num_frames=num_frames,
-        from_cache=cached is not None,
-        wall_seconds=time.perf_counter() - started,
-        timings=timer.ms_per_frame(num_frames),
-        mot_path=mot_path,
-        video_path=video_path if video and video_path.is_file() else None,
-    )
+        cache.save(name, key, det_rows, classes, num_frames=num_frames)
+        cache.save_blobs(name, key, [r.blobs for r in recorded])
