@@ -2,16 +2,14 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.enhance import DwtHsvEnhancer, NoEnhancement, enhance_dwt_hsv
 
 
 def _enhance_cfg(name: str, *overrides: str):
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        return compose(overrides=[f"+enhance={name}", *overrides]).enhance
+    return compose_config("track", [f"enhance={name}", *overrides]).enhance
 
 
 def test_none_config_builds_the_identity(dim_frame):
@@ -30,9 +28,13 @@ def test_dwt_hsv_config_holds_every_parameter_and_matches_the_defaults(dim_frame
     assert enhancer(dim_frame.rgb).tobytes() == enhance_dwt_hsv(dim_frame.rgb, **params).tobytes()
 
 
-def test_config_keys_override_from_the_command_line():
-    enhancer = instantiate(_enhance_cfg("dwt_hsv", "enhance.wavelet=db2", "enhance.level=3"))
-    assert (enhancer.wavelet, enhancer.level) == ("db2", 3)
+def test_config_keys_override_from_the_command_line(dim_frame):
+    default = instantiate(_enhance_cfg("dwt_hsv"))
+    enhancer = instantiate(_enhance_cfg("dwt_hsv", "enhance.wavelet=haar", "enhance.level=3"))
+    assert (default.wavelet, default.level) != ("haar", 3)
+    assert (enhancer.wavelet, enhancer.level) == ("haar", 3)
+    # the overrides reach the computation: the picture changes
+    assert not np.array_equal(enhancer(dim_frame.rgb), default(dim_frame.rgb))
 
 
 def test_a_bad_override_fails_at_construction():
