@@ -133,3 +133,47 @@ def test_current_pieces_are_kept_stale_ones_recomputed_and_starred_until_then(re
     assert "*" not in (root / "table4.md").read_text().split("Commands per row")[0]
     _main(monkeypatch, "--rows", "gt_sort", "--folds", "0", "--redo")
     assert calls[3:] == [("gt_sort", 0)]
+
+
+def test_a_group_name_runs_each_of_its_rows(results_dir, monkeypatch):
+    _, calls = results_dir
+    _main(monkeypatch, "--rows", "gt_peers", "--folds", "0")
+    assert calls == [(f"gt_{peer}", 0) for peer in table4.PEERS]
+    assert set(table4.GROUPS["gt_peers"]) < set(table4.GROUPS["peers"])
+
+
+def test_scenarios_pool_mota_exactly_and_weight_hota_by_boxes(results_dir):
+    root, _ = results_dir
+
+    def seq(scenario, boxes, errors, hota):
+        return {
+            "scenario": scenario,
+            "gt_boxes": boxes,
+            "fn": errors,
+            "fp": 0,
+            "idsw": 0,
+            "hota": hota,
+            "idf1": hota,
+        }
+
+    record = {"row": "gt_bytetrack", "metrics": {m: 0.5 for m in table4.SHOWN}, "settings": "s",
+              "command": "python -m spacetrack.track fold=0", "profile": "CPU"}  # fmt: skip
+    for fold, sequences in enumerate([{"a": seq("dim", 100, 10, 0.8)}, {"b": seq("dim", 300, 20, 0.6)}]):
+        path = root / "results/gt_bytetrack" / f"fold{fold}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(record | {"fold": fold, "sequences": sequences}))
+    older = root / "results/gt_sort/fold0.json"  # made before HOTA was scored: no hota, no sequences
+    older.parent.mkdir(parents=True)
+    older.write_text(json.dumps(record | {"row": "gt_sort", "fold": 0, "metrics": {"mota": 0.7, "idf1": 0.7,
+                                                                                 "idsw": 0, "fp": 0, "fn": 0}}))  # fmt: skip
+    table4.write_tables(current={})
+    dim = json.loads((root / "table4.json").read_text())["gt_bytetrack"]["scenarios"]["dim"]
+    assert dim["mota"] == pytest.approx(1 - 30 / 400)  # (10 + 20) errors over 400 boxes
+    assert dim["hota"] == pytest.approx((100 * 0.8 + 300 * 0.6) / 400)
+    table = (root / "table4.md").read_text()
+    assert "| `gt_bytetrack` | 92.5 / 65.0 | 2 |" in table
+    mota_table, hota_table = (
+        table.split("## HOTA\n")[0],
+        table.split("## HOTA\n")[1].split("## MOTA / HOTA")[0],
+    )
+    assert "`gt_sort`" in mota_table and "`gt_sort`" not in hota_table

@@ -25,6 +25,7 @@ for anyway (after a change of code rather than of settings). Stale cells are sta
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import platform
 import subprocess
@@ -262,7 +263,13 @@ def _command_template(record: dict) -> str:
 
 def current_settings(common: list[str]) -> dict[str, str]:
     """{row: `settings_hash` of its pieces under the current config with `common` overrides}."""
-    return {row: settings_hash(piece_overrides(row, 0, common)) for row in ROWS}
+    return dict(_current_settings(tuple(common)))
+
+
+@functools.lru_cache(maxsize=4)
+def _current_settings(common: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+    # one config composition per row (about 30 of them) per process and set of overrides
+    return tuple((row, settings_hash(piece_overrides(row, 0, list(common)))) for row in ROWS)
 
 
 def _mean(done: dict[int, dict], metric: str) -> float | None:
