@@ -27,6 +27,7 @@ from spacetrack.pipeline.stages import DetectionStream, FrameDetections, dynamic
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.tracking import DeepSort
 from spacetrack.tracking.io import FEATURES, write_mot_results
+from spacetrack.tracking.offline import OfflineSettings, post_process
 from spacetrack.viz.video import VideoWriter
 
 
@@ -135,6 +136,7 @@ def run_source(
     video: bool,
     progress: bool = True,
     hold: DynamicHold | None = None,
+    offline: OfflineSettings | None = None,
 ) -> SequenceResult:
     """Track `source`; write `<out_dir>/<name>.txt` (MOT) and, with `video`, `<name>.mp4`.
 
@@ -146,6 +148,8 @@ def run_source(
         (the paper) and, with a `DynamicHold` `hold`, those it holds for tracks the motion stage lost for
         a while; "track", every detection reaches the tracker with its flag and the tracker decides per
         track (it was built with `dynamics`); "off", every detection is tracked and output.
+    offline: post-process the whole sequence's tracks (`tracking.offline`) before they are written and
+        returned; the video shows the online ones. None: the online tracks.
     """
     started = time.perf_counter()
     cached = cache.load(source.name, key) if cache is not None else None
@@ -159,9 +163,18 @@ def run_source(
         stream, total=source.num_frames, desc=source.name, unit="frame", disable=not progress, leave=False
     )
     mot_path, video_path = out_dir / f"{source.name}.txt", out_dir / f"{source.name}.mp4"
-    rows_out, num_frames = _track(
-        bar, source, tracker, mode, hold, timer, video_path=video_path if video else None
+    rows_out, num_frames, matched = _track(
+        bar,
+        source,
+        tracker,
+        mode,
+        hold,
+        timer,
+        video_path=video_path if video else None,
+        matched=offline is not None,
     )
+    if offline is not None:
+        rows_out = post_process(rows_out, matched, offline)
     write_mot_results(mot_path, rows_out)
     if cache is not None:
         _update_cache(cache, source.name, key, cached, recorded, rerun_motion, num_frames)
@@ -211,10 +224,14 @@ def _track(
     timer: StageTimer,
     *,
     video_path: Path | None,
-) -> tuple[np.ndarray, int]:
-    """Step the tracker through the frames; (rows `frame, id, x, y, w, h` of its output, frames seen).
-    With `video_path`, the annotated frames are written there as they come (replacing it at the end)."""
+    matched: bool = False,
+) -> tuple[np.ndarray, int, np.ndarray | None]:
+    """Step the tracker through the frames: rows `frame, id, x, y, w, h` of its output, the frames seen
+    and, with `matched` (for offline backfill, when the tracker lists them), the same rows of every track
+    matched to a detection on each frame. With `video_path`, the annotated frames are written there as
+    they come (replacing it at the end)."""
     annotator, results = Annotator(), []
+    matches = [] if matched and hasattr(tracker, "matched_tracks") else None
     if hold is not None:
         hold.reset()
     with ExitStack() as stack:
@@ -233,6 +250,9 @@ def _track(
             if hold is not None:
                 hold.update(out)
             results.append(np.column_stack([np.full(len(out), item.frame), out]))
+            if matches is not None:
+                on_frame = tracker.matched_tracks()
+                matches.append(np.column_stack([np.full(len(on_frame), item.frame), on_frame]))
             if video_path is not None and item.image is not None:
                 if writer is None:
                     height, width = item.image.shape[:2]
@@ -243,7 +263,7 @@ def _track(
                     writer.write(annotator(item.image, out, static, info))
         if not results:
             raise ValueError(f"{source.description}: no frames")
-        return np.concatenate(results), len(results)
+        return np.concatenate(results), len(results), np.concatenate(matches) if matches else None
 
 
 def _update_cache(
