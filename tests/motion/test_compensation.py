@@ -175,3 +175,15 @@ def test_compensate_takes_false_true_or_auto():
         FiveFrameDifference(compensate="sometimes")
     with pytest.raises(ValueError, match="probe_every"):
         SceneShift(probe_every=-1)
+
+
+def test_a_first_probe_finds_a_slew_on_the_second_frame_and_leaves_a_still_camera_alone():
+    slewing = _star_field(14, (2, 0))
+    early, late = SceneShift(probe_every=10, first_probe=True), SceneShift(probe_every=10)
+    with_probe = [early.update(f) for f in slewing]
+    without = [late.update(f) for f in slewing]
+    np.testing.assert_allclose(with_probe, [(2 * t, 0) for t in range(14)], atol=0.3)  # from frame 2 on
+    assert all(o == (0.0, 0.0) for o in without[:10])  # the plain schedule waits for frame 11
+    still = SceneShift(probe_every=10, first_probe=True)
+    assert all(still.update(f) == (0.0, 0.0) for f in _still_field_with_a_target(25))
+    assert not still.moving

@@ -143,3 +143,15 @@ def test_output_box_detection_writes_the_matched_box_and_the_state_on_a_missed_f
 def test_an_unknown_camera_motion_mode_is_an_error():
     with pytest.raises(ValueError, match="tracker.camera_motion must be false, true or auto, got 'on'"):
         DeepSort(**SORT, camera_motion="on")
+
+
+def test_under_a_moving_camera_masks_on_a_parked_object_no_longer_make_it_dynamic():
+    # The camera slews from the first frame; the motion masks light up on the parked object in its first
+    # frames (the motion stage has not caught up with the slew yet). The trajectory says it is parked.
+    field, frames = starfield(), []
+    for f in range(30):
+        offset = (3 * f, 0)
+        frames.append(([(40 + offset[0], 60, 16, 16)], np.array([f < 8]), view(field, offset)))
+    assert not set().union(*run(frames, dynamics=TrackDynamics(), camera_motion="auto"))
+    trusting = run(frames, dynamics=TrackDynamics(blobs_when_camera_moves=True), camera_motion="auto")
+    assert set().union(*trusting)  # trusting the masks, it is output

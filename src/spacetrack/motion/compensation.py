@@ -72,13 +72,23 @@ class SceneShift:
             that finds the scene moved (at least N * min_step pixels, by the median of at least three
             confident tiles) on: a still camera pays one measurement in N frames and its offset stays
             exactly zero; a slewing one is compensated from its first probe on (not the frames before).
+        first_probe: with `probe_every`, also probe the second frame against the first (a one-frame shift of
+            at least `min_step`), so that a camera slewing from the start is compensated from its second
+            frame instead of its (probe_every + 1)-th; when that probe finds nothing, the schedule goes on
+            as without it.
 
     Detectors fed the same frames can share one estimator (the fusion's two parts do): `update` with the
     caller's frame number measures each frame once and hands its offset to the next caller too.
     """
 
     def __init__(
-        self, *, tile: int = 128, min_response: float = 0.05, min_step: float = 0.25, probe_every: int = 0
+        self,
+        *,
+        tile: int = 128,
+        min_response: float = 0.05,
+        min_step: float = 0.25,
+        probe_every: int = 0,
+        first_probe: bool = False,
     ) -> None:
         if tile < 8:
             raise ValueError(f"tile must be >= 8 pixels, got {tile}")
@@ -87,6 +97,7 @@ class SceneShift:
         if probe_every < 0:
             raise ValueError(f"probe_every must be >= 0 frames, got {probe_every}")
         self.probe_every = probe_every
+        self.first_probe = first_probe
         self.tile = tile
         self.min_response = min_response
         self.min_step = min_step
@@ -96,6 +107,7 @@ class SceneShift:
     def reset(self) -> None:
         with self._lock:
             self._previous: np.ndarray | None = None
+            self._previous_frame = 0  # the count (1-based) of the frame `_previous` holds
             self._window: np.ndarray | None = None
             self._position = np.zeros(2)
             self._frames = 0
@@ -128,17 +140,23 @@ class SceneShift:
         return float(self._position[0]), float(self._position[1])
 
     def _probe(self, grey: np.ndarray) -> None:
-        """Every `probe_every` frames: has the scene moved since the last probe? Trusted only from several
-        agreeing tiles (one tile may hold nothing but a large target)."""
-        if (self._frames - 1) % self.probe_every:
+        """Every `probe_every` frames (and with `first_probe` on the second frame): has the scene moved
+        since the last probe? Trusted only from several agreeing tiles (one tile may hold nothing but a
+        large target)."""
+        early = self.first_probe and self._frames == 2
+        if not early and (self._frames - 1) % self.probe_every:
             return
         current = grey.astype(np.float32)
+        found = False
         if self._previous is not None:
             step, tiles = self._step(self._previous, current)
-            if tiles >= PROBE_MIN_TILES and np.hypot(*step) >= self.min_step * self.probe_every:
+            elapsed = self._frames - self._previous_frame
+            found = tiles >= PROBE_MIN_TILES and np.hypot(*step) >= self.min_step * elapsed
+            if found:
                 self._position += step
                 self.moving = True
-        self._previous = current
+        if found or not early:  # an early probe that found nothing leaves the schedule as it was
+            self._previous, self._previous_frame = current, self._frames
 
     def _step(self, previous: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, int]:
         """Median shift (x, y) of the confident tiles from `previous` to `current` (zero without any),

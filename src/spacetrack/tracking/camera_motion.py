@@ -31,16 +31,22 @@ class _CountedSceneShift(SceneShift):
 
 class CameraMotion:
     """Scene shift per frame. mode: False (none: every shift is zero), True (measure every frame) or
-    "auto" (probe every few frames and measure every frame once the scene moves: a still camera's
-    shifts stay exactly zero). A frame without texture to measure (no confident tile) counts as still,
-    and the first such frame of a sequence is logged."""
+    "auto" (probe the second frame, then every few frames, and measure every frame once the scene moves:
+    a still camera's shifts stay exactly zero). A frame without texture to measure (no confident tile)
+    counts as still, and the first such frame of a sequence is logged. `moving` tells whether any shift
+    has been applied yet (the track-level decision then stops trusting the motion masks)."""
 
     def __init__(self, mode: bool | str, *, name: str = "tracker.camera_motion") -> None:
         if mode not in MODES:
             raise ValueError(f"{name} must be false, true or auto, got {mode!r}")
         self.mode = mode
-        self._scene = _CountedSceneShift(probe_every=PROBE_EVERY if mode == "auto" else 0) if mode else None
+        self._scene = (
+            _CountedSceneShift(probe_every=PROBE_EVERY if mode == "auto" else 0, first_probe=True)
+            if mode
+            else None
+        )
         self._offset = np.zeros(2)
+        self.moving = False
         self._frame = 0
         self._warned = False
 
@@ -65,4 +71,5 @@ class CameraMotion:
             )
             self._warned = True
         shift, self._offset = offset - self._offset, offset
+        self.moving = self.moving or bool(np.any(shift))
         return shift

@@ -112,7 +112,9 @@ class DeepSort:
         self.tracker.predict((float(shift[0]), float(shift[1])))
         offset = self.camera.offset
         self.tracker.update(
-            Detections.create(tlwh, confidence, feature, dynamic), (float(offset[0]), float(offset[1]))
+            Detections.create(tlwh, confidence, feature, dynamic),
+            (float(offset[0]), float(offset[1])),
+            camera_moving=self.camera.moving,
         )
         return track_rows(self.tracker.outputs())
 

@@ -12,6 +12,11 @@ each carrying its per-frame blob flag, and each track gathers two kinds of evide
   object that only drifts with a slewing camera stays put there; a dim mover whose masks are thin
   travels on.
 
+Under a moving camera the masks depend on how well the motion stage compensates the slew, and they
+light up on parked objects while it has not caught up; once the tracker has found the camera moving
+(`tracking.camera_motion`), blob evidence no longer makes a track dynamic unless `blobs_when_camera_moves`
+says so, and the trajectory alone decides.
+
 The decision latches: a track found dynamic stays dynamic when its target stops (the ground truth keeps a
 stopped target's rows). Tracks not (yet) dynamic stay in the tracker, so a parked object keeps one
 track instead of seeding a new one every frame, but they are never output.
@@ -47,6 +52,7 @@ class TrackDynamics:
         both in scene coordinates (> 0) ...
     min_displacement_height: ... and at least this many box heights away (>= 0): a large object's box
         centre wanders more with its outline than a small one's.
+    blobs_when_camera_moves: whether blob evidence still counts once the camera has been found moving.
     """
 
     def __init__(
@@ -57,6 +63,7 @@ class TrackDynamics:
         min_blob_hits: int = 2,
         min_displacement: float = 6.0,
         min_displacement_height: float = 0.25,
+        blobs_when_camera_moves: bool = False,
     ) -> None:
         checks = {
             "window": (window, window >= 1, ">= 1"),
@@ -73,13 +80,24 @@ class TrackDynamics:
         self.min_blob_hits = int(min_blob_hits)
         self.min_displacement = float(min_displacement)
         self.min_displacement_height = float(min_displacement_height)
+        self.blobs_when_camera_moves = bool(blobs_when_camera_moves)
 
     def new_evidence(self) -> MotionEvidence:
         return MotionEvidence(self.window)
 
-    def observe(self, evidence: MotionEvidence, tlwh: np.ndarray, offset: np.ndarray, blob: bool) -> None:
+    def observe(
+        self,
+        evidence: MotionEvidence,
+        tlwh: np.ndarray,
+        offset: np.ndarray,
+        blob: bool,
+        *,
+        camera_moving: bool = False,
+    ) -> None:
         """Add one hit: the matched box `tlwh` (image pixels), the frame's scene `offset` (x, y pixels from
-        the first frame) and whether a blob matched the box; latch `evidence.dynamic` once it holds."""
+        the first frame) and whether a blob matched the box; latch `evidence.dynamic` once it holds.
+        camera_moving: the camera has been found moving (blobs then count only with
+        `blobs_when_camera_moves`)."""
         tlwh = np.asarray(tlwh, dtype=float)
         centre = tlwh[:2] + tlwh[2:] / 2 - np.asarray(offset, dtype=float)
         if evidence.anchor is None:
@@ -89,7 +107,10 @@ class TrackDynamics:
         if evidence.dynamic:
             return
         hits = sum(evidence.flags)
-        by_blobs = hits >= self.min_blob_hits and hits >= self.min_blob_ratio * len(evidence.flags)
+        trust_blobs = self.blobs_when_camera_moves or not camera_moving
+        by_blobs = (
+            trust_blobs and hits >= self.min_blob_hits and hits >= self.min_blob_ratio * len(evidence.flags)
+        )
         moved = float(np.linalg.norm(np.median(np.array(evidence.centres), axis=0) - evidence.anchor))
         by_trajectory = moved >= max(self.min_displacement, self.min_displacement_height * tlwh[3])
         evidence.dynamic = by_blobs or by_trajectory

@@ -64,6 +64,7 @@ class Tracker:
         self.kf = KalmanFilter()
         self.tracks: list[Track] = []
         self._next_id = 1
+        self._camera_moving = False
 
     def predict(self, shift: tuple[float, float] = (0.0, 0.0)) -> None:
         """Move every track one frame ahead (call once per frame, before `update`).
@@ -79,12 +80,20 @@ class Tracker:
         for track, mean, cov in zip(self.tracks, means, covs, strict=True):
             track.predicted(mean, cov)
 
-    def update(self, detections: Detections, offset: tuple[float, float] = (0.0, 0.0)) -> None:
+    def update(
+        self,
+        detections: Detections,
+        offset: tuple[float, float] = (0.0, 0.0),
+        *,
+        camera_moving: bool = False,
+    ) -> None:
         """Associate this frame's `detections`, update matched tracks, age the others, start new ones.
 
         offset: the scene's displacement (x, y pixels) in this frame since the first one, for the motion
-        evidence of `dynamics`.
+        evidence of `dynamics`; camera_moving: whether the camera has been found moving (`dynamics` may
+        then stop trusting the blobs).
         """
+        self._camera_moving = camera_moving
         matches, unmatched_tracks, unmatched_detections = self._match(detections)
         if matches:
             t_idx, d_idx = map(list, zip(*matches, strict=True))
@@ -142,7 +151,13 @@ class Tracker:
             return
         if track.evidence is None:
             track.evidence = self.dynamics.new_evidence()
-        self.dynamics.observe(track.evidence, detections.tlwh[d], offset, detections.dynamic[d])
+        self.dynamics.observe(
+            track.evidence,
+            detections.tlwh[d],
+            offset,
+            detections.dynamic[d],
+            camera_moving=self._camera_moving,
+        )
 
     @staticmethod
     def _boxes(tracks: list[Track]) -> np.ndarray:
