@@ -208,5 +208,7 @@ class PeerTracker:
         for track_id, d in zip(ids, source, strict=True):
             evidence = self.evidence.setdefault(int(track_id), self.dynamics.new_evidence())
             if d >= 0:
-                self.dynamics.observe(evidence, tlwh[d], self.camera.offset, bool(flags[d]))
+                self.dynamics.observe(
+                    evidence, tlwh[d], self.camera.offset, bool(flags[d]), camera_moving=self.camera.moving
+                )
         return np.array([self.evidence[int(i)].dynamic for i in ids], dtype=bool)
