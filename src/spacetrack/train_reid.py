@@ -10,7 +10,7 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from spacetrack import cli
-from spacetrack.reid.pipeline import train_fold
+from spacetrack.reid.training import train_fold
 
 
 def run(cfg: DictConfig) -> dict[str, float]:

@@ -11,7 +11,7 @@ import torch
 
 from spacetrack.config import compose_config
 from spacetrack.mlflow_log import PARENT_RUN_TAG, cv_parent_summary, start_run
-from spacetrack.reid import Encoder, pipeline
+from spacetrack.reid import Encoder, training
 from spacetrack.train_reid import run
 
 
@@ -81,7 +81,7 @@ def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
     )
     unbroken = run(compose_config("train_reid", [*base, "output_dir=" + str(tmp_path / "unbroken")]))
 
-    real_fit = pipeline.fit
+    real_fit = training.fit
 
     def stop_after_two_epochs(*args, save_state, **kwargs):
         def save_then_maybe_stop(state):
@@ -91,10 +91,10 @@ def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
 
         return real_fit(*args, save_state=save_then_maybe_stop, **kwargs)
 
-    monkeypatch.setattr(pipeline, "fit", stop_after_two_epochs)
+    monkeypatch.setattr(training, "fit", stop_after_two_epochs)
     with pytest.raises(KeyboardInterrupt):
         run(compose_config("train_reid", base))
-    monkeypatch.setattr(pipeline, "fit", real_fit)
+    monkeypatch.setattr(training, "fit", real_fit)
     fold = tmp_path / "out" / "fold1"
     assert (fold / "last.pt").is_file() and not (fold / "reid.pt").exists()
     with pytest.raises(ValueError, match=r"cannot resume .*last\.pt with other settings: .*lr"):

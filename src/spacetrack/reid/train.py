@@ -57,13 +57,7 @@ def fit(
         raise ValueError("a resumable re-ID training needs a DataLoader with its own generator")
     start, stats = 0, {}
     if resume_state is not None:
-        net.load_state_dict(resume_state["net"])
-        head.load_state_dict(resume_state["head"])
-        optimizer.load_state_dict(resume_state["optimizer"])
-        loader.generator.set_state(resume_state["loader_rng"])
-        torch.set_rng_state(resume_state["torch_rng"])
-        if device.type == "cuda" and resume_state.get("cuda_rng") is not None:
-            torch.cuda.set_rng_state(resume_state["cuda_rng"], device)
+        _restore(resume_state, net, head, optimizer, loader, device)
         start, stats = resume_state["epoch"] + 1, dict(resume_state["stats"])
     step = start * len(loader)
     for epoch in range(start, epochs):
@@ -94,18 +88,47 @@ def fit(
         if on_epoch is not None:
             on_epoch(epoch, stats)
         if save_state is not None:
-            save_state(
-                {
-                    "epoch": epoch,
-                    "net": net.state_dict(),
-                    "head": head.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "loader_rng": loader.generator.get_state(),
-                    "torch_rng": torch.get_rng_state(),
-                    "cuda_rng": torch.cuda.get_rng_state(device) if device.type == "cuda" else None,
-                    "stats": stats,
-                }
-            )
+            save_state(_state(epoch, stats, net, head, optimizer, loader, device))
     net.eval()
     head.eval()
     return stats
+
+
+def _state(
+    epoch: int,
+    stats: dict[str, float],
+    net: nn.Module,
+    head: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    loader: DataLoader,
+    device: torch.device,
+) -> dict[str, Any]:
+    """Everything a training needs to go on after `epoch` as if never stopped (see `_restore`)."""
+    return {
+        "epoch": epoch,
+        "net": net.state_dict(),
+        "head": head.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "loader_rng": loader.generator.get_state(),
+        "torch_rng": torch.get_rng_state(),
+        "cuda_rng": torch.cuda.get_rng_state(device) if device.type == "cuda" else None,
+        "stats": stats,
+    }
+
+
+def _restore(
+    state: dict[str, Any],
+    net: nn.Module,
+    head: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    loader: DataLoader,
+    device: torch.device,
+) -> None:
+    """Load a `_state` into the training's parts and random generators."""
+    net.load_state_dict(state["net"])
+    head.load_state_dict(state["head"])
+    optimizer.load_state_dict(state["optimizer"])
+    loader.generator.set_state(state["loader_rng"])
+    torch.set_rng_state(state["torch_rng"])
+    if device.type == "cuda" and state.get("cuda_rng") is not None:
+        torch.cuda.set_rng_state(state["cuda_rng"], device)

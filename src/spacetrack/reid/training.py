@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +27,7 @@ from spacetrack.engine.trainer import autocast_dtype
 from spacetrack.io import atomic_write_text, load_torch_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.reid.crops import Cropper
-from spacetrack.reid.dataset import CropDataset, collect_crops, cut_crops, jitter_augment
+from spacetrack.reid.dataset import CropDataset, CropTable, collect_crops, cut_crops, jitter_augment
 from spacetrack.reid.encoder import Encoder
 from spacetrack.reid.evaluation import evaluate_features, plot_distances
 from spacetrack.reid.loss import CosineSoftmax
@@ -58,8 +60,6 @@ def load_resume_state(path: Path, settings: dict) -> dict:
 def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) -> dict[str, float]:
     """Train on every fold but `fold`, evaluate on `fold`; returns the held-out metrics (see evaluation)."""
     t = cfg.train_reid
-    root = Path(cfg.dataset)
-    train_seqs, val_seqs = split_sequences(load_manifest(root), fold)
     out = Path(cfg.output_dir) / f"fold{fold}"
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(t.seed)
@@ -68,43 +68,12 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
     device = resolve_device(t.device)
     cropper: Cropper = instantiate(cfg.model.crop)
     net = instantiate(cfg.model.net)
-    select = dict(min_visibility=t.min_visibility, min_box_size=t.min_box_size)
-    train_table = collect_crops(
-        root, train_seqs, include_static=t.include_static, frame_stride=t.frame_stride, **select
-    )
-    # Evaluation asks about what the tracker tracks: moving targets only.
-    val_table = collect_crops(
-        root, val_seqs, include_static=False, frame_stride=t.eval_frame_stride, **select
-    )
-    started = time.perf_counter()
-    train_crops = cut_crops(root, train_table, cropper, scale=t.context, image_dir=cfg.image_dir)
-    val_crops = cut_crops(root, val_table, cropper, image_dir=cfg.image_dir)
-    augment = jitter_augment(height=cropper.height, width=cropper.width, **t.augment)
-    dataset = CropDataset(
-        train_crops,
-        train_table.identity,
-        height=cropper.height,
-        width=cropper.width,
-        augment=augment,
-        seed=t.seed,
-    )
-    loader = DataLoader(
-        dataset,
-        batch_size=t.batch_size,
-        shuffle=True,
-        drop_last=len(dataset) >= t.batch_size,
-        num_workers=t.workers,
-        generator=torch.Generator().manual_seed(t.seed),
-    )
-    head = CosineSoftmax(feature_dim=net.feature_dim, num_classes=len(train_table.names))
+    data = _crops(cfg, fold, cropper)
+    loader = _loader(data, cropper, t)
+    head = CosineSoftmax(feature_dim=net.feature_dim, num_classes=len(data.train_table.names))
     settings = training_settings(cfg, fold)
     checkpoint = out / "last.pt"
-    resume_state = None
-    if cfg.resume and checkpoint.is_file():
-        resume_state = load_resume_state(checkpoint, settings)
-        print(f"fold {fold}: resuming {checkpoint} after epoch {resume_state['epoch'] + 1}/{t.epochs}")
-    elif cfg.resume:
-        print(f"fold {fold}: no {checkpoint} to resume, starting afresh")
+    resume_state = _resume_state(cfg, checkpoint, settings, fold)
     with start_run(
         cfg,
         run_name=f"fold{fold}",
@@ -118,22 +87,7 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
             extra = {"format": CHECKPOINT_FORMAT, "settings": settings, "mlflow_run_id": run_id}
             save_checkpoint(checkpoint, state | extra)
 
-        sizes = {
-            "train_identities": len(train_table.names),
-            "train_crops": len(train_table),
-            "val_identities": len(val_table.names),
-            "val_crops": len(val_table),
-            "crop_seconds": time.perf_counter() - started,
-        }
-        log_metrics_step(sizes, step=0)
-
-        def on_epoch(epoch: int, stats: dict[str, float]) -> None:
-            log_metrics_step(stats, step=epoch)
-            print(
-                f"fold {fold} epoch {epoch + 1}/{t.epochs}: "
-                + ", ".join(f"{k}={v:.4g}" for k, v in stats.items())
-            )
-
+        log_metrics_step(data.sizes, step=0)
         started = time.perf_counter()
         stats = fit(
             net,
@@ -145,38 +99,116 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
             warmup_epochs=t.warmup_epochs,
             device=device,
             autocast=autocast_dtype(device, t.amp),
-            on_epoch=on_epoch,
+            on_epoch=partial(_log_epoch, fold, t.epochs),
             save_state=save_state,
             resume_state=resume_state,
         )
         train_seconds = time.perf_counter() - started
         weights = out / "reid.pt"
         save_weights(
-            weights,
-            net.cpu(),
-            net_kwargs=_kwargs(cfg.model.net),
-            crop_kwargs=_kwargs(cfg.model.crop),
+            weights, net.cpu(), net_kwargs=_kwargs(cfg.model.net), crop_kwargs=_kwargs(cfg.model.crop)
         )
         encoder = Encoder(net, cropper, device=device, batch_size=t.eval_batch_size)
-        features = encoder.encode_crops(torch.from_numpy(val_crops).permute(0, 3, 1, 2).float().div(255.0))
-        metrics, arrays = evaluate_features(
-            features,
-            val_table.identity,
-            val_table.sequence,
-            val_table.frame,
-            exclude_frames=t.exclude_frames,
-            window=t.gallery_window,
-            thresholds=list(t.thresholds),
-        )
-        metrics |= {**sizes, **stats, "train_seconds": train_seconds}
+        metrics = _evaluate(cfg, fold, encoder, data, out)
+        metrics |= {**data.sizes, **stats, "train_seconds": train_seconds}
         log_metrics_step(metrics, step=t.epochs)
-        plot = out / "distances.png"
-        plot_distances(arrays, list(t.thresholds), plot, title=f"{root.name}: held-out fold {fold}")
-        np.savez_compressed(out / "distances.npz", **arrays)
         atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
-        for path in (plot, out / "metrics.json", out / "distances.npz"):
+        for path in (out / "distances.png", out / "metrics.json", out / "distances.npz"):
             log_artifact_file(path)
         log_artifact_file(weights, "weights")
+    return metrics
+
+
+def _log_epoch(fold: int, epochs: int, epoch: int, stats: dict[str, float]) -> None:
+    log_metrics_step(stats, step=epoch)
+    print(f"fold {fold} epoch {epoch + 1}/{epochs}: " + ", ".join(f"{k}={v:.4g}" for k, v in stats.items()))
+
+
+@dataclass
+class _FoldCrops:
+    """The crops of one fold: training crops of the other folds' identities, held-out ones of `fold`'s."""
+
+    train_table: CropTable
+    val_table: CropTable
+    train_crops: np.ndarray
+    val_crops: np.ndarray
+    sizes: dict[str, float]
+
+
+def _crops(cfg: DictConfig, fold: int, cropper: Cropper) -> _FoldCrops:
+    t, root = cfg.train_reid, Path(cfg.dataset)
+    train_seqs, val_seqs = split_sequences(load_manifest(root), fold)
+    select = dict(min_visibility=t.min_visibility, min_box_size=t.min_box_size)
+    train_table = collect_crops(
+        root, train_seqs, include_static=t.include_static, frame_stride=t.frame_stride, **select
+    )
+    # Evaluation asks about what the tracker tracks: moving targets only.
+    val_table = collect_crops(
+        root, val_seqs, include_static=False, frame_stride=t.eval_frame_stride, **select
+    )
+    started = time.perf_counter()
+    train_crops = cut_crops(root, train_table, cropper, scale=t.context, image_dir=cfg.image_dir)
+    val_crops = cut_crops(root, val_table, cropper, image_dir=cfg.image_dir)
+    sizes = {
+        "train_identities": len(train_table.names),
+        "train_crops": len(train_table),
+        "val_identities": len(val_table.names),
+        "val_crops": len(val_table),
+        "crop_seconds": time.perf_counter() - started,
+    }
+    return _FoldCrops(train_table, val_table, train_crops, val_crops, sizes)
+
+
+def _loader(data: _FoldCrops, cropper: Cropper, t: DictConfig) -> DataLoader:
+    """Shuffled, augmented batches of the training crops; the order comes from the loader's own seeded
+    generator, so that a resumed training draws the same batches."""
+    augment = jitter_augment(height=cropper.height, width=cropper.width, **t.augment)
+    dataset = CropDataset(
+        data.train_crops,
+        data.train_table.identity,
+        height=cropper.height,
+        width=cropper.width,
+        augment=augment,
+        seed=t.seed,
+    )
+    return DataLoader(
+        dataset,
+        batch_size=t.batch_size,
+        shuffle=True,
+        drop_last=len(dataset) >= t.batch_size,
+        num_workers=t.workers,
+        generator=torch.Generator().manual_seed(t.seed),
+    )
+
+
+def _resume_state(cfg: DictConfig, checkpoint: Path, settings: dict, fold: int) -> dict | None:
+    """With `resume`, the state of `checkpoint` when there is one (None: start afresh)."""
+    if not cfg.resume:
+        return None
+    if not checkpoint.is_file():
+        print(f"fold {fold}: no {checkpoint} to resume, starting afresh")
+        return None
+    state = load_resume_state(checkpoint, settings)
+    print(f"fold {fold}: resuming {checkpoint} after epoch {state['epoch'] + 1}/{cfg.train_reid.epochs}")
+    return state
+
+
+def _evaluate(cfg: DictConfig, fold: int, encoder: Encoder, data: _FoldCrops, out: Path) -> dict[str, float]:
+    """Held-out metrics of the encoder on `fold`'s crops; the distance plot and arrays go to `out`."""
+    t = cfg.train_reid
+    crops = torch.from_numpy(data.val_crops).permute(0, 3, 1, 2).float().div(255.0)
+    metrics, arrays = evaluate_features(
+        encoder.encode_crops(crops),
+        data.val_table.identity,
+        data.val_table.sequence,
+        data.val_table.frame,
+        exclude_frames=t.exclude_frames,
+        window=t.gallery_window,
+        thresholds=list(t.thresholds),
+    )
+    title = f"{Path(cfg.dataset).name}: held-out fold {fold}"
+    plot_distances(arrays, list(t.thresholds), out / "distances.png", title=title)
+    np.savez_compressed(out / "distances.npz", **arrays)
     return metrics
 
 
