@@ -6,164 +6,17 @@ validation predictions of the best epoch); the same go to MLflow with per-epoch 
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import torch
-from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from spacetrack import cli
-from spacetrack.config import resolved_dict
-from spacetrack.data.crops import CropDataset
-from spacetrack.data.frame_store import FrameStore
-from spacetrack.data.layout import load_manifest, split_sequences
-from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
-from spacetrack.engine.checkpoint import peek_checkpoint
-from spacetrack.engine.loss import YoloLoss
-from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
-from spacetrack.engine.pretrained import load_pretrained, resolve_weights
-from spacetrack.engine.trainer import unfinished_checkpoint
-from spacetrack.io import file_hash
-from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
-from spacetrack.models.yolo import count_parameters
+from spacetrack.engine.training import train_fold
 
-REPORTED = ("map50", "map50_95", "precision", "recall", "recall_at_score", "fitness")
-
-
-def build_datasets(
-    cfg: DictConfig, root: Path, train_names: list[str], val_names: list[str], num_classes: int, enhancer
-) -> tuple[CropDataset | YoloDataset, YoloDataset]:
-    """(training, validation) data of `cfg.train`: native-resolution crops or letterboxed whole frames
-    for training; whole frames at `val_image_size` (null: native) for validation. Frames are decoded
-    (and enhanced) once into a `FrameStore` when `cache_frames` is on."""
-    image_dir, enhance_on_the_fly = image_source(root, train_names + val_names, enhancer.name)
-    on_the_fly = enhancer if enhance_on_the_fly else None
-    store = None
-    if cfg.train.cache_frames:
-        store = FrameStore(root=root, image_dir=image_dir, enhancer=on_the_fly, enhancer_name=enhancer.name)
-    common = {"root": root, "num_classes": num_classes, "store": store}
-    frames = {**common, "image_dir": image_dir, "enhancer": on_the_fly}
-    training = {
-        "sequences": train_names,
-        "frame_stride": cfg.train.frame_stride,
-        "augment": build_augmentation(**cfg.train.augment),
-        "seed": cfg.train.trainer.seed,
-    }
-    if cfg.train.input == "crops":
-        if store is None:
-            raise ValueError("train.input=crops reads decoded frames: set train.cache_frames=true")
-        train_set = CropDataset(**common, **training, crop_size=cfg.train.image_size, **cfg.train.crops)
-    elif cfg.train.input == "frames":
-        train_set = YoloDataset(**frames, **training, image_size=cfg.train.image_size)
-    else:
-        raise ValueError(f"train.input must be crops or frames, got {cfg.train.input!r}")
-    val_set = YoloDataset(
-        **frames,
-        sequences=val_names,
-        image_size=cfg.train.val_image_size,
-        frame_stride=cfg.train.val_frame_stride,
-    )
-    return train_set, val_set
+fit = train_fold  # one fold with its checkpoints and MLflow run id, as pretrain and the studies use it
 
 
 def run(cfg: DictConfig) -> dict[str, float]:
-    """Train one fold; return the best epoch's mAP@0.5, mAP@0.5:0.95, precision, recall and fitness."""
-    return fit(cfg)["metrics"]
-
-
-def fit(cfg: DictConfig) -> dict:
-    """Train one fold: `metrics` (as `run` returns them), `best` and `last` (checkpoint paths), `run_id`
-    (the MLflow run, or None)."""
-    root = Path(cfg.data_root) / cfg.data.name
-    manifest = load_manifest(root)
-    train_names, val_names = split_sequences(manifest, cfg.fold)
-    class_names = list(manifest["class_names"])
-    if cfg.train.threads:
-        torch.set_num_threads(int(cfg.train.threads))
-    enhancer = instantiate(cfg.enhance)
-
-    torch.manual_seed(cfg.train.trainer.seed)
-    model = instantiate(cfg.model, num_classes=len(class_names))
-    weights = resolve_weights(cfg.weights, model.arch)
-    loss_fn = YoloLoss(
-        anchors=model.detect.anchors,
-        strides=model.stride,
-        num_classes=len(class_names),
-        image_size=cfg.train.image_size,
-        **cfg.train.loss,
-    )
-    train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
-    trainer = instantiate(cfg.train.trainer)
-    # Everything besides the trainer's own keys that changes the result; a resume must not change it.
-    run_settings = (
-        resolved_dict(OmegaConf.masked_copy(cfg, ["data", "enhance", "model", "fold"]))
-        | {k: v for k, v in resolved_dict(cfg.train).items() if k not in ("trainer", "threads")}
-        | {"weights": file_hash(weights) if weights else None, "weights_partial": bool(cfg.weights_partial)}
-    )
-    resume = cfg.resume
-    if resume == "auto":
-        settings = {**trainer.settings, **run_settings}
-        resume = unfinished_checkpoint(list(cfg.resume_dirs), arch=model.arch, settings=settings)
-        print(
-            f"fold {cfg.fold}: " + (f"resuming {resume}" if resume else "nothing to resume, starting afresh")
-        )
-    out_dir = Path(resume).resolve().parents[1] if resume else Path(cfg.out_dir)
-    if resume is None and weights is not None:
-        print(f"fold {cfg.fold}: " + load_pretrained(model, weights, partial=cfg.weights_partial), flush=True)
-    elif resume is None:
-        print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
-
-    plots = out_dir / "plots"
-    plots.mkdir(parents=True, exist_ok=True)
-
-    def on_epoch_end(record: dict[str, float], details: dict, is_best: bool) -> None:
-        log_metrics_step({k: v for k, v in record.items() if k != "epoch"}, step=int(record["epoch"]))
-        print(" ".join(f"{k}={v:.4g}" for k, v in record.items()), flush=True)
-        if is_best:
-            plot_pr_curves(details["pr_curves"], class_names, plots / "pr_curve.png")
-            write_png(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
-
-    tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
-    # A resumed training continues the MLflow run that wrote its checkpoint (when this store has it).
-    earlier_run = peek_checkpoint(resume).get("mlflow_run_id") if resume else None
-    with start_run(
-        cfg,
-        run_name=f"fold{cfg.fold}",
-        parent_run_id=cfg.cv_parent_run_id,
-        tags=tags,
-        continue_run_id=earlier_run,
-    ) as active:
-        log_metrics_step(
-            {
-                "parameters": count_parameters(model),
-                "train_images": len(train_set),
-                "val_images": len(val_set),
-            },
-            0,
-        )
-        result = trainer.fit(
-            model=model,
-            loss_fn=loss_fn,
-            train_set=train_set,
-            val_set=val_set,
-            out_dir=out_dir,
-            resume_from=resume,
-            run_settings=run_settings,
-            on_epoch_end=on_epoch_end,
-            extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,
-        )
-        best = max(result["history"], key=lambda r: r["fitness"])
-        summary = {k: float(best.get(k, float("nan"))) for k in REPORTED}  # older epochs lack some
-        log_metrics_step({f"best_{k}": v for k, v in summary.items()} | {"best_epoch": best["epoch"]}, step=0)
-        log_artifact_file(result["best"], "weights")
-        for name in ("pr_curve.png", "val_predictions.png"):
-            log_artifact_file(plots / name, "plots")
-    print(
-        f"fold {cfg.fold}: best epoch {best['epoch']}: "
-        + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
-    )
-    run_id = active.info.run_id if active is not None else None
-    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id}
+    """Best-epoch metrics of fold `cfg.fold` (a child of run `cfg.cv_parent_run_id` when one is set)."""
+    return train_fold(cfg)["metrics"]
 
 
 @cli.entry_point("train", metric="fitness", files="out_dir")
