@@ -21,9 +21,9 @@ from omegaconf import OmegaConf
 
 from spacetrack.config import compose_config
 from spacetrack.data.layout import load_manifest
-from spacetrack.eval_motion import score_sequence
 from spacetrack.io import atomic_write_text
 from spacetrack.motion.evaluation import MotionScore
+from spacetrack.motion.scoring import score_sequence
 
 HERE = Path(__file__).resolve().parent
 # name -> (what changes, keys of conf/motion/fusion.yaml to override)
