@@ -75,7 +75,7 @@ def write_clip(root: Path, seq: dict, path: Path) -> int:
     return len(frames)
 
 
-def track_sequence(cfg: DictConfig, seq: dict, out_dir: Path) -> dict[str, float]:
+def run_pipeline_on(cfg: DictConfig, seq: dict, out_dir: Path) -> dict[str, float]:
     """The whole pipeline (detector, re-ID, motion fusion, DeepSORT) on one sequence of the demo data."""
     overrides = [
         f"data_root={cfg.data_root}",
@@ -117,7 +117,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     print(f"clip: {clip} ({frames} frames, left: frame and ground truth, right: motion mask)")
     result = {"sequences": float(len(manifest["sequences"])), "clip_frames": float(frames)}
     if cfg.track.enabled:
-        scores = track_sequence(cfg, seq, demo_dir / "track")
+        scores = run_pipeline_on(cfg, seq, demo_dir / "track")
         print(
             f"tracked: {demo_dir / 'track'} ({seq['name']}.txt, .mp4, metrics.json): "
             + ", ".join(f"{k}={v:.3f}" for k, v in scores.items() if k in ("mota", "idf1", "idsw", "fps"))

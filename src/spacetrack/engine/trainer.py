@@ -19,6 +19,7 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from spacetrack.data.yolo_dataset import collate
+from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import differences, load_checkpoint, peek_checkpoint, save_checkpoint
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
 from spacetrack.engine.validate import evaluate
@@ -26,13 +27,6 @@ from spacetrack.engine.validate import evaluate
 # Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
 RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes")
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
-
-
-def resolve_device(device: str) -> torch.device:
-    """`auto` is the first GPU when there is one, else the CPU; anything else is passed to torch."""
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
 
 
 def native_bfloat16() -> bool:
