@@ -172,6 +172,7 @@ def test_continuing_a_run_reopens_it_without_touching_its_params(
     changed = make_cfg(
         config_dir, f"logger.tracking_uri={store}", "logger.experiment=continued", "model.lr=0.5"
     )
+    mlflow.set_experiment("another")  # the process's active experiment is not the run's
     with mlflow_log.start_run(changed, run_name="ignored", continue_run_id=first.info.run_id) as second:
         mlflow_log.log_metrics_step({"loss": 0.5}, 1)
     assert second.info.run_id == first.info.run_id

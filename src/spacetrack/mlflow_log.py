@@ -227,6 +227,8 @@ def start_run(
         tags = {"swept": ",".join(point), **point, **(tags or {})}
     if previous is not None:
         resumes = int(previous.data.tags.get("resumes", "0")) + 1
+        # MLflow refuses to reopen a run of another experiment than the process's active one
+        mlflow.set_experiment(experiment_id=previous.info.experiment_id)
         run = mlflow.start_run(run_id=previous.info.run_id, nested=nested or parent_run_id is not None)
     else:
         run = mlflow.start_run(
