@@ -171,7 +171,7 @@ def run_source(
         hold,
         timer,
         video_path=video_path if video else None,
-        matched=offline is not None,
+        matched=offline is not None and offline.backfill,
     )
     if offline is not None:
         rows_out = post_process(rows_out, matched, offline)
@@ -227,11 +227,11 @@ def _track(
     matched: bool = False,
 ) -> tuple[np.ndarray, int, np.ndarray | None]:
     """Step the tracker through the frames: rows `frame, id, x, y, w, h` of its output, the frames seen
-    and, with `matched` (for offline backfill, when the tracker lists them), the same rows of every track
+    and, with `matched` (for offline backfill), the same rows of every track
     matched to a detection on each frame. With `video_path`, the annotated frames are written there as
     they come (replacing it at the end)."""
     annotator, results = Annotator(), []
-    matches = [] if matched and hasattr(tracker, "matched_tracks") else None
+    matches = [] if matched else None
     if hold is not None:
         hold.reset()
     with ExitStack() as stack:

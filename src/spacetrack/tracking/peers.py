@@ -122,6 +122,7 @@ class PeerTracker:
         self.output_box = output_box
         self.evidence: dict[int, MotionEvidence] = {}
         self._static = np.zeros((0, 5))
+        self._matched = np.zeros((0, 5))
         self._frame = 0
 
     @property
@@ -170,6 +171,7 @@ class PeerTracker:
         if self.output_box == "detection":
             boxes[source >= 0] = tlwh[source[source >= 0]]
         rows = track_rows(list(zip(ids, boxes, strict=True)))
+        self._matched = rows[source >= 0]
         if self.dynamics is None:
             return rows
         moving = self._observe(ids, source, tlwh, dynamic)
@@ -179,6 +181,10 @@ class PeerTracker:
     def static_tracks(self) -> np.ndarray:
         """Rows (track id, x, y, w, h) of this frame's tracks `dynamics` holds static (kept, not output)."""
         return self._static
+
+    def matched_tracks(self) -> np.ndarray:
+        """Rows (track id, x, y, w, h) of this frame's tracks matched to a detection, output or not."""
+        return self._matched
 
     def _embeddings(self, feature: np.ndarray | None, kept: np.ndarray) -> torch.Tensor | None:
         if not self.requirements.embeddings:
