@@ -56,8 +56,8 @@ ui: $(STAMP) ## serve the MLflow UI on the project's store (http://127.0.0.1:500
 		--host 127.0.0.1 --port $${PORT:-5000} --workers 1
 
 lint: $(STAMP) ## ruff check and format check
-	$(VENV)/bin/ruff check src tests benchmarks
-	$(VENV)/bin/ruff format --check src tests benchmarks
+	$(VENV)/bin/ruff check --no-cache src tests benchmarks
+	$(VENV)/bin/ruff format --no-cache --check src tests benchmarks
 
 format: $(STAMP) ## apply ruff fixes and formatting
 	$(VENV)/bin/ruff check --fix src tests benchmarks

@@ -2,8 +2,8 @@ import math
 
 import pytest
 import torch
-from detector_helpers import loss_for, tiny_model, write_tiny_dataset
 
+from detector_helpers import loss_for, tiny_model, write_tiny_dataset
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation
 from spacetrack.engine.checkpoint import load_checkpoint, load_detector
 from spacetrack.engine.trainer import Trainer

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 import torch
-from detector_helpers import tiny_model
 from torch.utils.data import DataLoader
 
+from detector_helpers import tiny_model
 from spacetrack.data.yolo_dataset import YoloDataset, collate
 from spacetrack.engine.metrics import detection_metrics
 from spacetrack.engine.validate import evaluate

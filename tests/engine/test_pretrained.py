@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from detector_helpers import loss_for, tiny_model
 
+from detector_helpers import loss_for, tiny_model
 from spacetrack.engine import pretrained
 from spacetrack.engine.pretrained import HEAD_PREFIX, load_pretrained, resolve_weights
 from spacetrack.engine.trainer import autocast_dtype
