@@ -5,6 +5,7 @@ rendered with another seed than the cross-validation data, so that no fold's seq
 before that fold is held out. The training is `spacetrack.train`'s with `conf/pretrain.yaml`; its best
 EMA weights go to `weights/yolov5s_pretrained.pt` (or `yolov5s_gam_pretrained.pt`) in fp16, with the
 resolved settings inside the file. A stopped run resumes where its last checkpoint left it.
+`torchrun --nproc_per_node=N -m spacetrack.pretrain` trains on N GPUs as `spacetrack.train` does.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from omegaconf import DictConfig
 
 from spacetrack import cli
 from spacetrack.data.layout import load_manifest
+from spacetrack.engine.distributed import launched_world
 from spacetrack.engine.pretrained import PRETRAINED
 from spacetrack.export_weights import export_detector
 from spacetrack.train import fit
@@ -58,6 +60,8 @@ def run(cfg: DictConfig) -> dict[str, float]:
     root = Path(cfg.data_root) / cfg.data.name
     check_disjoint(root, Path(cfg.cv_data))
     result = fit(cfg)
+    if not launched_world().is_main:  # one of several processes that trained together: rank 0 exports
+        return result["metrics"]
     gam = cfg.model.gam_position
     if gam not in PRETRAINED:
         raise ValueError(f"no pretrained file name for gam_position {gam!r} (known: {list(PRETRAINED)})")

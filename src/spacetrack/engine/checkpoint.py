@@ -2,9 +2,11 @@
 
 A checkpoint is a dict with `arch` (the YOLOv5 constructor keywords), `model` and `ema` state dicts,
 `ema_updates`, `optimizer`, `scaler`, `epoch` (last finished, 0-based), `partial` (None, or how far the
-next epoch got when the checkpoint was written mid-epoch: `batch`, and the loss sums so far), `best_fitness`, `history`
-(metrics per epoch) and `settings` (the trainer's keywords). Loading one for another architecture,
-or resuming with other settings, is an error that names what differs.
+next epoch got when the checkpoint was written mid-epoch: `batch`, counted in global batches, and the
+loss sums so far of all processes), `best_fitness`, `history` (metrics per epoch), `settings` (the
+trainer's keywords) and `world_size` (the processes that trained it; absent: one). Loading one for
+another architecture, or resuming with other settings, is an error that names what differs; another
+number of processes is allowed (see `engine.trainer`).
 """
 
 from __future__ import annotations

@@ -3,11 +3,14 @@
 Everything random in an epoch (sample order, augmentation) is drawn from (seed, epoch), gradients never
 cross an epoch boundary and the checkpoint holds the full optimiser, EMA and scaler state, so resuming
 from `last.pt` after a kill gives the same weights as a run that was never interrupted.
+
+Launched in several processes (`torchrun`, see `engine.distributed`) it trains one model with
+DistributedDataParallel: `batch_size` stays the global batch, each process takes its share of every
+batch of the same (seed, epoch) order, and rank 0 alone validates and writes the checkpoints.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,13 +22,27 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from spacetrack.data.yolo_dataset import collate
-from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import differences, load_checkpoint, peek_checkpoint, save_checkpoint
+from spacetrack.engine.distributed import (
+    World,
+    batches_per_epoch,
+    broadcast_object,
+    check_batch_split,
+    collectives_in_step,
+    current_world,
+    distribute_model,
+    process_device,
+    rank0_decides,
+    shard_of_batches,
+    sum_across,
+)
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
 from spacetrack.engine.validate import evaluate
 
 # Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
 RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes")
+# Trainer keywords newer than some checkpoints, with the value those checkpoints were trained with.
+LATER_SETTINGS = {"sync_bn": False}
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
 
 
@@ -48,6 +65,11 @@ def autocast_dtype(device: torch.device, amp: bool) -> torch.dtype | None:
     return torch.bfloat16 if device.type == "cpu" and native_bfloat16() else None
 
 
+def checkpoint_settings(state: dict[str, Any]) -> dict[str, Any]:
+    """The settings a checkpoint was trained with, `LATER_SETTINGS` filled in for older checkpoints."""
+    return {**LATER_SETTINGS, **state["settings"]}
+
+
 def unfinished_checkpoint(
     folders: list[str | Path], *, arch: dict[str, Any], settings: dict[str, Any]
 ) -> Path | None:
@@ -63,7 +85,7 @@ def unfinished_checkpoint(
         if not isinstance(state, dict) or not {"arch", "settings", "epoch"} <= set(state):
             continue
         if differences(state["arch"], arch) or differences(
-            state["settings"], settings, ignore=RESULT_NEUTRAL
+            checkpoint_settings(state), settings, ignore=RESULT_NEUTRAL
         ):
             continue
         if state["epoch"] + 1 < settings["epochs"]:
@@ -77,7 +99,8 @@ def fitness(metrics: dict[str, float]) -> float:
 
 
 class Trainer:
-    """Keyword arguments are the keys of `train.trainer` in the config; rates are per optimiser step."""
+    """Keyword arguments are the keys of `train.trainer` in the config; rates are per optimiser step,
+    `batch_size` is the global batch (split evenly across the processes of a distributed training)."""
 
     def __init__(
         self,
@@ -105,6 +128,7 @@ class Trainer:
         max_det: int = 300,
         progress: bool = True,
         checkpoint_minutes: float | None = 10.0,
+        sync_bn: bool = False,
     ) -> None:
         self.settings = {k: v for k, v in locals().items() if k != "self"}
         for key, value in self.settings.items():
@@ -128,30 +152,70 @@ class Trainer:
 
         `run_settings` (data, image size, augmentation...) are stored with the trainer's settings; a
         resume with any of them changed is refused. `extra_state` (the MLflow run id) goes into every
-        checkpoint as it is.
+        checkpoint as it is. In a distributed training every process calls it with the same arguments;
+        rank 0 alone writes `out_dir` and calls `on_epoch_end`, every process gets the same result.
         """
-        device = resolve_device(self.device)
-        model.to(device)
-        self.autocast = autocast_dtype(device, self.amp)
-        print(f"training on {device} in {self.autocast or torch.float32} (amp={self.amp})", flush=True)
-        run = _Run(self, model, {**self.settings, **(run_settings or {})}, extra_state or {}, device)
+        run = self._start(model, {**self.settings, **(run_settings or {})}, extra_state or {})
         if resume_from is not None:
             run.restore(resume_from)
         weights = Path(out_dir) / "weights"
-        weights.mkdir(parents=True, exist_ok=True)
-        val_loader = DataLoader(
-            val_set, batch_size=self.batch_size, num_workers=self.workers, collate_fn=collate
-        )
-        num_batches = math.ceil(len(train_set) / self.batch_size)
+        if run.world.is_main:
+            weights.mkdir(parents=True, exist_ok=True)
+        val_loader = self._val_loader(val_set) if run.world.is_main else None
+        num_batches = batches_per_epoch(len(train_set), batch_size=self.batch_size, world=run.world)
         for epoch in range(run.epoch + 1, self.epochs):
             train_set.set_epoch(epoch)
             components, images_per_s = self._train_epoch(
                 run, loss_fn, train_set, epoch, num_batches, last_checkpoint=weights / "last.pt"
             )
+            record, details = self._validate(run, loss_fn, val_loader, epoch, components, images_per_s)
+            is_best = run.finish_epoch(epoch, record)
+            if run.world.is_main:
+                self._save_epoch(run, weights, is_best)
+                if on_epoch_end is not None:
+                    on_epoch_end(record, details, is_best)
+        return {
+            "history": run.history,
+            "best_fitness": run.best,
+            "best": weights / "best.pt",
+            "last": weights / "last.pt",
+        }
+
+    def _start(self, model: nn.Module, settings: dict[str, Any], extra: dict[str, Any]) -> _Run:
+        """This process's device, precision and share of the batch; the training state of `model`."""
+        world = current_world()
+        device = process_device(self.device, world, key="train.trainer.device")
+        share = check_batch_split(self.batch_size, world, key="train.trainer.batch_size")
+        model.to(device)
+        self.autocast = autocast_dtype(device, self.amp)
+        processes = f"; {world.size} processes of {share} images a batch" if world.distributed else ""
+        print(
+            f"training on {device} in {self.autocast or torch.float32} (amp={self.amp}){processes}",
+            flush=True,
+        )
+        return _Run(self, model, settings, extra, device, world)
+
+    def _val_loader(self, val_set: Dataset) -> DataLoader:
+        return DataLoader(val_set, batch_size=self.batch_size, num_workers=self.workers, collate_fn=collate)
+
+    def _validate(
+        self,
+        run: _Run,
+        loss_fn: Callable,
+        val_loader: DataLoader | None,
+        epoch: int,
+        components: list[float],
+        images_per_s: float,
+    ) -> tuple[dict[str, float], dict[str, Any]]:
+        """The epoch's record (losses, validation metrics of the EMA model, fitness, rate, images/s) and
+        the validation details (PR curves, examples): computed by rank 0, the record sent to all."""
+        details: dict[str, Any] = {}
+        record = None
+        if run.world.is_main:
             metrics, details = evaluate(
                 run.ema.module,
                 val_loader,
-                device=device,
+                device=run.device,
                 conf_threshold=self.conf_threshold,
                 iou_threshold=self.iou_threshold,
                 max_det=self.max_det,
@@ -165,18 +229,13 @@ class Trainer:
                 "lr": run.optimizer.param_groups[1]["lr"],
                 "train_images_per_s": images_per_s,
             }
-            is_best = run.finish_epoch(epoch, record)
-            save_checkpoint(weights / "last.pt", run.state())
-            if is_best:
-                save_checkpoint(weights / "best.pt", run.state())
-            if on_epoch_end is not None:
-                on_epoch_end(record, details, is_best)
-        return {
-            "history": run.history,
-            "best_fitness": run.best,
-            "best": weights / "best.pt",
-            "last": weights / "last.pt",
-        }
+        return broadcast_object(record, run.world), details
+
+    @staticmethod
+    def _save_epoch(run: _Run, weights: Path, is_best: bool) -> None:
+        save_checkpoint(weights / "last.pt", run.state())
+        if is_best:
+            save_checkpoint(weights / "best.pt", run.state())
 
     def _train_epoch(
         self,
@@ -188,80 +247,141 @@ class Trainer:
         last_checkpoint: Path,
     ) -> tuple[list[float], float]:
         """One pass over the epoch's batches, from the first one a mid-epoch checkpoint had not done: mean
-        [box, obj, cls] loss per image, and training images per second. Every `checkpoint_minutes` a
-        checkpoint is written at the next optimiser step, holding how far the epoch got."""
-        model, optimizer, scaler, ema = run.model, run.optimizer, run.scaler, run.ema
-        device = next(model.parameters()).device
+        [box, obj, cls] loss per image, and training images per second (of all processes). Every
+        `checkpoint_minutes` a checkpoint is written at the next optimiser step, holding how far the
+        epoch got."""
+        skip = run.partial.pop("batch", 0)
+        tally = _Tally(run.partial.pop("progress", None), run.world)
+        run.partial.clear()
         target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
+        run.forward.train()
+        run.optimizer.zero_grad()
+        last_save = time.perf_counter()
+        bar = tqdm(self._epoch_loader(train_set, epoch, skip, run.world), desc=f"epoch {epoch + 1}/{self.epochs}",
+                   unit="batch", disable=not (self.progress and run.world.is_main), leave=False, initial=skip,
+                   total=num_batches)  # fmt: skip
+        for i, (images, targets) in enumerate(bar, start=skip):
+            self._set_rates(run, num_batches * epoch + i, num_batches, target_lr)
+            step_ends = (i + 1) % run.accumulate == 0 or i + 1 == num_batches
+            with collectives_in_step(run.forward, synchronise=step_ends):
+                loss, components = self._forward(run, loss_fn, images, targets)
+                if not torch.isfinite(loss):
+                    raise _diverged(loss, epoch, i, last_checkpoint, resumed_at=skip)
+                # Each process's loss is its share's (times its share of images); DDP averages the
+                # gradients over the processes, so times their number gives the global batch's.
+                run.scaler.scale(loss * run.world.size).backward()
+            tally.add(components, len(images))
+            if step_ends:
+                run.step()
+                last_save = self._checkpoint_if_due(
+                    run, tally, last_checkpoint, i + 1, num_batches, last_save
+                )
+        return tally.epoch_means(run.world)
+
+    def _epoch_loader(self, train_set: Dataset, epoch: int, skip: int, world: World) -> DataLoader:
+        """This process's batches of the epoch's (seed, epoch) order from global batch `skip` on."""
         order = torch.randperm(
             len(train_set), generator=torch.Generator().manual_seed(self.seed * 100_003 + epoch)
         )
-        skip, sums, seen, elapsed = (
-            run.partial.pop("batch", 0),
-            *run.partial.pop("progress", (torch.zeros(3), 0, 0.0)),
+        mine = shard_of_batches(
+            order.tolist()[skip * self.batch_size :], batch_size=self.batch_size, world=world, drop_last=False
         )
-        run.partial.clear()
-        loader = DataLoader(train_set, batch_size=self.batch_size, sampler=order.tolist()[skip * self.batch_size :],
-                            num_workers=self.workers, collate_fn=collate)  # fmt: skip
-        accumulate = run.accumulate
-        model.train()
-        optimizer.zero_grad()
-        started = last_save = time.perf_counter()
-        kept_at = f"{epoch} batch {skip}" if skip else (epoch - 1 if epoch else None)
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{self.epochs}", unit="batch", disable=not self.progress,
-                   leave=False, initial=skip, total=num_batches)  # fmt: skip
-        for i, (images, targets) in enumerate(bar, start=skip):
-            set_learning_rates(
-                optimizer,
-                iteration=num_batches * epoch + i,
-                warmup_iterations=round(self.warmup_epochs * num_batches),
-                target_lr=target_lr,
-                momentum=self.momentum,
-                warmup_momentum=self.warmup_momentum,
-                warmup_bias_lr=self.warmup_bias_lr,
-            )
-            with torch.autocast(device.type, dtype=self.autocast, enabled=self.autocast is not None):
-                raw = model(images.to(device).float() / 255)
-            loss, components = loss_fn([p.float() for p in raw], targets.to(device))
-            if not torch.isfinite(loss):
-                kept = (
-                    f"{last_checkpoint} (epoch {kept_at}) is kept"
-                    if kept_at is not None
-                    else "no checkpoint yet"
-                )
-                raise FloatingPointError(
-                    f"training loss is {loss.item()} at epoch {epoch} batch {i}; stopped, {kept}. Lower "
-                    "train.trainer.lr0 or check the labels."
-                )
-            scaler.scale(loss).backward()
-            sums += components.cpu() * len(images)
-            seen += len(images)
-            if (i + 1) % accumulate == 0 or i + 1 == num_batches:
-                scaler.unscale_(optimizer)
-                nn.utils.clip_grad_norm_(model.parameters(), max_norm=self.grad_clip)
-                scaler.step(optimizer)
-                scaler.update()
-                optimizer.zero_grad()
-                ema.update(model)
-                now = time.perf_counter()
-                due = self.checkpoint_minutes is not None and now - last_save >= 60 * self.checkpoint_minutes
-                if due and i + 1 < num_batches:
-                    progress = (sums.clone(), seen, elapsed + now - started)
-                    save_checkpoint(
-                        last_checkpoint, run.state(partial={"batch": i + 1, "progress": progress})
-                    )
-                    last_save = now
-        elapsed += time.perf_counter() - started
+        return DataLoader(train_set, batch_size=self.batch_size // world.size, sampler=mine,
+                          num_workers=self.workers, collate_fn=collate)  # fmt: skip
+
+    def _set_rates(self, run: _Run, iteration: int, num_batches: int, target_lr: float) -> None:
+        """Learning rates and momentum of batch `iteration` (counted over the whole run)."""
+        set_learning_rates(
+            run.optimizer,
+            iteration=iteration,
+            warmup_iterations=round(self.warmup_epochs * num_batches),
+            target_lr=target_lr,
+            momentum=self.momentum,
+            warmup_momentum=self.warmup_momentum,
+            warmup_bias_lr=self.warmup_bias_lr,
+        )
+
+    def _forward(
+        self, run: _Run, loss_fn: Callable, images: torch.Tensor, targets: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(loss, [box, obj, cls] per image) of a batch of uint8 images and its target rows."""
+        device = run.device
+        with torch.autocast(device.type, dtype=self.autocast, enabled=self.autocast is not None):
+            raw = run.forward(images.to(device).float() / 255)
+        return loss_fn([p.float() for p in raw], targets.to(device))
+
+    def _checkpoint_if_due(
+        self, run: _Run, tally: _Tally, path: Path, next_batch: int, num_batches: int, last_save: float
+    ) -> float:
+        """After an optimiser step: write `path` with how far the epoch got (`next_batch`) when rank 0
+        last wrote it `checkpoint_minutes` ago or more and the epoch goes on; when it was last written."""
+        if self.checkpoint_minutes is None or next_batch >= num_batches:
+            return last_save
+        now = time.perf_counter()
+        if not rank0_decides(now - last_save >= 60 * self.checkpoint_minutes, run.world):
+            return last_save
+        progress = tally.totals(run.world)
+        if run.world.is_main:
+            save_checkpoint(path, run.state(partial={"batch": next_batch, "progress": progress}))
+        return now
+
+
+def _diverged(
+    loss: torch.Tensor, epoch: int, batch: int, last_checkpoint: Path, *, resumed_at: int
+) -> FloatingPointError:
+    """The error of a non-finite loss at `batch` of `epoch`, naming the checkpoint that is kept."""
+    kept_at = f"{epoch} batch {resumed_at}" if resumed_at else (epoch - 1 if epoch else None)
+    kept = f"{last_checkpoint} (epoch {kept_at}) is kept" if kept_at is not None else "no checkpoint yet"
+    return FloatingPointError(
+        f"training loss is {loss.item()} at epoch {epoch} batch {batch}; stopped, {kept}. Lower "
+        "train.trainer.lr0 or check the labels."
+    )
+
+
+class _Tally:
+    """An epoch's [box, obj, cls] loss sums (per-image means times images) and images so far, and its
+    training seconds. Each process counts its own; rank 0 also what a mid-epoch checkpoint it resumes
+    from had counted (`progress`: sums, images, seconds, over all processes)."""
+
+    def __init__(self, progress: tuple[torch.Tensor, int, float] | None, world: World) -> None:
+        resumed = progress is not None and world.is_main
+        self.sums, self.seen, self.elapsed = progress if resumed else (torch.zeros(3), 0, 0.0)
+        self.started = time.perf_counter()
+
+    def add(self, components: torch.Tensor, images: int) -> None:
+        self.sums += components.cpu() * images
+        self.seen += images
+
+    def totals(self, world: World) -> tuple[torch.Tensor, int, float]:
+        """(loss sums, images) of all processes, and the seconds so far (collective: every process
+        calls it)."""
+        counts = sum_across(torch.cat((self.sums, torch.tensor([float(self.seen)]))), world)
+        return counts[:3], int(counts[3]), self.elapsed + time.perf_counter() - self.started
+
+    def epoch_means(self, world: World) -> tuple[list[float], float]:
+        """Mean [box, obj, cls] loss per image and images per second, over all processes."""
+        sums, seen, elapsed = self.totals(world)
         return (sums / max(seen, 1)).tolist(), seen / max(elapsed, 1e-9)
 
 
 class _Run:
     """What a training carries from step to step and saves: the model, its optimiser, EMA and scaler,
-    the last finished epoch, the best fitness, the history, and how far an unfinished epoch got."""
+    the last finished epoch, the best fitness, the history, and how far an unfinished epoch got; the
+    process's world and device, and `forward`: the model, or its DDP wrapper in several processes."""
 
-    def __init__(self, trainer: Trainer, model: nn.Module, settings: dict, extra: dict, device: torch.device):
-        self.model, self.settings, self.extra = model, settings, extra
+    def __init__(
+        self,
+        trainer: Trainer,
+        model: nn.Module,
+        settings: dict,
+        extra: dict,
+        device: torch.device,
+        world: World,
+    ) -> None:
+        self.model, self.settings, self.extra, self.device, self.world = model, settings, extra, device, world
+        self.forward = distribute_model(model, device, world, sync_bn=trainer.sync_bn)
         self.accumulate = max(round(trainer.nbs / trainer.batch_size), 1)
+        self.grad_clip = trainer.grad_clip
         decay = trainer.weight_decay * trainer.batch_size * self.accumulate / trainer.nbs
         self.optimizer = build_optimizer(
             model, lr0=trainer.lr0, momentum=trainer.momentum, weight_decay=decay
@@ -271,11 +391,15 @@ class _Run:
         self.epoch, self.best, self.history, self.partial = -1, -1.0, [], {}
 
     def restore(self, path: str | Path) -> None:
-        """Continue from the checkpoint at `path`; refuse it when its settings differ."""
+        """Continue from the checkpoint at `path`; refuse it when its settings differ. One of another
+        number of processes is taken: the batches and their order do not depend on it."""
         state = load_checkpoint(path, arch=self.model.arch)
-        changed = differences(state["settings"], self.settings, ignore=RESULT_NEUTRAL)
+        changed = differences(checkpoint_settings(state), self.settings, ignore=RESULT_NEUTRAL)
         if changed:
             raise ValueError(f"cannot resume {path} with other settings: {changed}")
+        before = state.get("world_size", 1)
+        if before != self.world.size:
+            print(f"resuming {path}, trained in {before} process(es), in {self.world.size}", flush=True)
         self.model.load_state_dict(state["model"])
         self.ema.module.load_state_dict(state["ema"])
         self.ema.updates = state["ema_updates"]
@@ -283,6 +407,15 @@ class _Run:
         self.scaler.load_state_dict(state["scaler"])
         self.epoch, self.best, self.history = state["epoch"], state["best_fitness"], state["history"]
         self.partial = dict(state.get("partial") or {})
+
+    def step(self) -> None:
+        """One optimiser step on the gradients so far (unscaled, clipped), then the EMA update."""
+        self.scaler.unscale_(self.optimizer)
+        nn.utils.clip_grad_norm_(self.model.parameters(), max_norm=self.grad_clip)
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+        self.optimizer.zero_grad()
+        self.ema.update(self.model)
 
     def finish_epoch(self, epoch: int, record: dict[str, float]) -> bool:
         """Record a finished epoch; whether it is the best so far."""
@@ -306,5 +439,6 @@ class _Run:
             "best_fitness": self.best,
             "history": self.history,
             "settings": self.settings,
+            "world_size": self.world.size,
             **self.extra,
         }

@@ -2,11 +2,15 @@
 
 The run folder holds `weights/best.pt`, `weights/last.pt` and `plots/` (PR curve and a grid of
 validation predictions of the best epoch); the same go to MLflow with per-epoch losses and metrics.
-The training loop itself is `engine.trainer.Trainer`.
+The training loop itself is `engine.trainer.Trainer`; started by `torchrun --nproc_per_node=N` (or a
+SLURM job of N tasks) the N processes train one model with DistributedDataParallel
+(`engine.distributed`).
 """
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -20,10 +24,11 @@ from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
 from spacetrack.engine.checkpoint import peek_checkpoint
+from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
 from spacetrack.engine.pretrained import load_pretrained, resolve_weights
-from spacetrack.engine.trainer import unfinished_checkpoint
+from spacetrack.engine.trainer import Trainer, unfinished_checkpoint
 from spacetrack.io import file_hash
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.models.yolo import count_parameters
@@ -70,7 +75,64 @@ def build_datasets(
 def train_fold(cfg: DictConfig) -> dict:
     """Train on every fold but `cfg.fold`, validate on it: `metrics` (the best epoch's mAP@0.5,
     mAP@0.5:0.95, precision, recall, recall at score 0.5 and fitness), `best` and `last` (checkpoint
-    paths), `run_id` (the MLflow run, or None)."""
+    paths), `run_id` (the MLflow run, or None).
+
+    Launched in several processes (torchrun, a SLURM job of several tasks) the processes train one
+    model together; rank 0 alone writes the run folder and the MLflow run (the others get run_id None).
+    """
+    with process_group(cfg.train.trainer.device, key="train.trainer.device") as world:
+        fold = _prepare_fold(cfg, world)
+        plots = fold.out_dir / "plots"
+        if world.is_main:
+            plots.mkdir(parents=True, exist_ok=True)
+        with _fold_run(cfg, fold, world) as active:
+            sizes = {
+                "parameters": count_parameters(fold.model),
+                "train_images": len(fold.train_set),
+                "val_images": len(fold.val_set),
+            }
+            log_metrics_step(sizes, 0)
+            result = fold.trainer.fit(
+                model=fold.model,
+                loss_fn=fold.loss_fn,
+                train_set=fold.train_set,
+                val_set=fold.val_set,
+                out_dir=fold.out_dir,
+                resume_from=fold.resume,
+                run_settings=fold.run_settings,
+                on_epoch_end=partial(_log_epoch, plots, fold.class_names),
+                extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,
+            )
+            best, summary = _best_epoch(result)
+            if world.is_main:
+                _log_best(best, summary, result, plots)
+    print(
+        f"fold {cfg.fold}: best epoch {best['epoch']}: "
+        + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
+    )
+    run_id = active.info.run_id if active is not None else None
+    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id}
+
+
+@dataclass
+class _Fold:
+    """What one fold's training is made of, the same in every process of a distributed training."""
+
+    model: torch.nn.Module
+    loss_fn: YoloLoss
+    train_set: CropDataset | YoloDataset
+    val_set: YoloDataset
+    trainer: Trainer
+    run_settings: dict
+    resume: str | Path | None
+    out_dir: Path
+    class_names: list[str]
+    tags: dict[str, str]
+
+
+def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
+    """The fold's data, model (at its start: seeded, pretrained or resumed), trainer and run folder;
+    rank 0 chooses the checkpoint to resume and the folder, the other processes follow."""
     root = Path(cfg.data_root) / cfg.data.name
     manifest = load_manifest(root)
     train_names, val_names = split_sequences(manifest, cfg.fold)
@@ -84,49 +146,33 @@ def train_fold(cfg: DictConfig) -> dict:
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
     run_settings = _run_settings(cfg, weights)
-    resume = _resume_from(cfg, trainer, model, run_settings)
-    out_dir = Path(resume).resolve().parents[1] if resume else Path(cfg.out_dir)
+    resume = broadcast_object(
+        _resume_from(cfg, trainer, model, run_settings) if world.is_main else None, world
+    )
+    out_dir = broadcast_object(Path(resume).resolve().parents[1] if resume else Path(cfg.out_dir), world)
     if resume is None and weights is not None:
         print(f"fold {cfg.fold}: " + load_pretrained(model, weights, partial=cfg.weights_partial), flush=True)
     elif resume is None:
         print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
-
-    plots = out_dir / "plots"
-    plots.mkdir(parents=True, exist_ok=True)
     tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
-    # A resumed training continues the MLflow run that wrote its checkpoint (when this store has it).
-    earlier_run = peek_checkpoint(resume).get("mlflow_run_id") if resume else None
-    with start_run(
+    return _Fold(
+        model, loss_fn, train_set, val_set, trainer, run_settings, resume, out_dir, class_names, tags
+    )
+
+
+def _fold_run(cfg: DictConfig, fold: _Fold, world: World) -> AbstractContextManager:
+    """The fold's MLflow run on rank 0 (None on the others). A resumed training continues the run that
+    wrote its checkpoint (when this store has it)."""
+    if not world.is_main:
+        return nullcontext(None)
+    earlier_run = peek_checkpoint(fold.resume).get("mlflow_run_id") if fold.resume else None
+    return start_run(
         cfg,
         run_name=f"fold{cfg.fold}",
         parent_run_id=cfg.cv_parent_run_id,
-        tags=tags,
+        tags=fold.tags,
         continue_run_id=earlier_run,
-    ) as active:
-        sizes = {
-            "parameters": count_parameters(model),
-            "train_images": len(train_set),
-            "val_images": len(val_set),
-        }
-        log_metrics_step(sizes, 0)
-        result = trainer.fit(
-            model=model,
-            loss_fn=loss_fn,
-            train_set=train_set,
-            val_set=val_set,
-            out_dir=out_dir,
-            resume_from=resume,
-            run_settings=run_settings,
-            on_epoch_end=partial(_log_epoch, plots, class_names),
-            extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,
-        )
-        best, summary = _log_best(result, plots)
-    print(
-        f"fold {cfg.fold}: best epoch {best['epoch']}: "
-        + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
     )
-    run_id = active.info.run_id if active is not None else None
-    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id}
 
 
 def _model_and_loss(cfg: DictConfig, num_classes: int) -> tuple[torch.nn.Module, YoloLoss]:
@@ -176,12 +222,15 @@ def _log_epoch(
         write_png(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
 
 
-def _log_best(result: dict, plots: Path) -> tuple[dict, dict[str, float]]:
-    """The best epoch's record and its `REPORTED` metrics, logged with the best weights and plots."""
+def _best_epoch(result: dict) -> tuple[dict, dict[str, float]]:
+    """The best epoch's record and its `REPORTED` metrics."""
     best = max(result["history"], key=lambda r: r["fitness"])
-    summary = {k: float(best.get(k, float("nan"))) for k in REPORTED}  # older epochs lack some
+    return best, {k: float(best.get(k, float("nan"))) for k in REPORTED}  # older epochs lack some
+
+
+def _log_best(best: dict, summary: dict[str, float], result: dict, plots: Path) -> None:
+    """The best epoch's metrics to MLflow, with the best weights and plots."""
     log_metrics_step({f"best_{k}": v for k, v in summary.items()} | {"best_epoch": best["epoch"]}, step=0)
     log_artifact_file(result["best"], "weights")
     for name in ("pr_curve.png", "val_predictions.png"):
         log_artifact_file(plots / name, "plots")
-    return best, summary
