@@ -2,6 +2,8 @@
 
 The run folder holds `weights/best.pt`, `weights/last.pt` and `plots/` (PR curve and a grid of
 validation predictions of the best epoch); the same go to MLflow with per-epoch losses and metrics.
+`torchrun --nproc_per_node=N -m spacetrack.train fold=3` (`make train FOLD=3 GPUS=N`) trains one model on N
+GPUs with DistributedDataParallel; rank 0 writes the folder and the MLflow run (docs/scaling-out.md).
 """
 
 from __future__ import annotations

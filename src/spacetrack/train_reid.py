@@ -3,6 +3,7 @@
 python -m spacetrack.train_reid fold=3                        # train on folds != 3, evaluate on fold 3
 python -m spacetrack.train_reid -m fold=0,1,2,3,4,5,6,7,8     # cross-validation: one MLflow parent run
 python -m spacetrack.train_reid train_reid=smoke data=smoke logger=none
+torchrun --nproc_per_node=4 -m spacetrack.train_reid fold=3  # one network on 4 GPUs (make train-reid GPUS=4)
 """
 
 from __future__ import annotations

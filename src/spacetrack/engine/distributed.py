@@ -93,32 +93,33 @@ def current_world() -> World:
     )
 
 
+def require_gpus(processes: int, *, key: str) -> int:
+    """The number of GPUs here, refused when it is less than `processes` (one process per GPU on this
+    machine; `key`: the device setting that would train on the CPU instead)."""
+    count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    if processes > count:
+        instead = f"; {key}=cpu trains in {processes} CPU processes instead" if count == 0 else ""
+        raise ValueError(
+            f"{processes} training processes on this machine (GPUS / --nproc_per_node) need {processes} GPUs, "
+            f"but it has {count or 'none'}{instead}"
+        )
+    return count
+
+
 def process_device(setting: str, world: World, *, key: str) -> torch.device:
     """The device of this process for the config value `setting` of `key` (`auto`, `cpu`, `cuda`):
-    alone, as `resolve_device` says; among several, GPU `local_rank` (made current), or the CPU when
-    `setting` is `cpu`. Refused: more processes on this machine than GPUs, `auto` without a GPU, one
-    pinned GPU (`cuda:1`) for several processes."""
+    alone, as `resolve_device` says; among several, GPU `local_rank` (made current) for `auto` and
+    `cuda`, the CPU for `cpu`. Refused: more processes on this machine than GPUs (see `require_gpus`),
+    one pinned GPU (`cuda:1`) for several processes."""
     device = resolve_device(setting)
-    if not world.distributed:
-        return device
-    if device.type == "cpu" and setting == "auto":
-        raise ValueError(
-            f"{world.size} processes (GPUS / --nproc_per_node) asked for GPUs ({key}=auto) but this "
-            f"machine has none; {key}=cpu trains in {world.size} CPU processes instead"
-        )
-    if device.type != "cuda":
+    if not world.distributed or (device.type != "cuda" and setting != "auto"):
         return device
     if device.index is not None:
         raise ValueError(
             f"{key}={setting} pins one GPU, but each of the {world.size} processes takes its own: "
             f"use {key}=auto or cuda"
         )
-    count = torch.cuda.device_count()
-    if world.local_size > count:
-        raise ValueError(
-            f"{world.local_size} processes on this machine (GPUS / --nproc_per_node) but it has "
-            f"{count} GPU(s): ask for at most {count}"
-        )
+    require_gpus(world.local_size, key=key)
     torch.cuda.set_device(world.local_rank)
     return torch.device("cuda", world.local_rank)
 
@@ -265,3 +266,19 @@ def collectives_in_step(model: nn.Module, synchronise: bool) -> AbstractContextM
     if synchronise or not isinstance(model, DistributedDataParallel):
         return nullcontext()
     return model.no_sync()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """`python -m spacetrack.engine.distributed GPUS KEY`: refuse, before any process starts, a GPUS
+    larger than this machine's GPUs (what `make train GPUS=N` checks first); KEY: the device setting."""
+    from spacetrack.cli import UserError, user_errors_exit
+
+    gpus, key = argv if argv is not None else sys.argv[1:]
+    with user_errors_exit():
+        if not gpus.isdigit() or int(gpus) < 1:
+            raise UserError(f"GPUS={gpus}: expected a number of GPUs, 1 or more")
+        require_gpus(int(gpus), key=key)
+
+
+if __name__ == "__main__":
+    main()

@@ -2,13 +2,15 @@
 identities, weights, metrics and the distance plot written to disk and logged to MLflow.
 
 Every epoch leaves `last.pt` (the whole training state) in the fold's folder; `resume=true` goes on
-from it, in the same MLflow run, to the same weights as a training that was never stopped.
+from it, in the same MLflow run, to the same weights as a training that was never stopped. Under
+`torchrun --nproc_per_node=N` the N processes train one network together (`reid.train.fit`).
 """
 
 from __future__ import annotations
 
 import json
 import time
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -21,8 +23,8 @@ from torch.utils.data import DataLoader
 
 from spacetrack.config import resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
-from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import differences, save_checkpoint
+from spacetrack.engine.distributed import World, broadcast_object, process_device, process_group
 from spacetrack.engine.trainer import autocast_dtype
 from spacetrack.io import atomic_write_text, load_torch_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
@@ -31,12 +33,14 @@ from spacetrack.reid.dataset import CropDataset, CropTable, collect_crops, cut_c
 from spacetrack.reid.encoder import Encoder
 from spacetrack.reid.evaluation import evaluate_features, plot_distances
 from spacetrack.reid.loss import CosineSoftmax
-from spacetrack.reid.train import fit
+from spacetrack.reid.train import fit, shuffled_loader
 from spacetrack.reid.weights import save_weights
 
 # Settings that may differ on resume: they change the speed, not the numbers.
 RESUME_NEUTRAL = ("threads", "workers")
 CHECKPOINT_FORMAT = "spacetrack-reid-train-1"
+# train_reid keys newer than some checkpoints, with the value those checkpoints were trained with.
+LATER_KEYS = {"sync_bn": False}
 
 
 def training_settings(cfg: DictConfig, fold: int) -> dict:
@@ -51,71 +55,103 @@ def load_resume_state(path: Path, settings: dict) -> dict:
     state = load_torch_file(path, "re-ID training checkpoint")
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path} is not a re-ID training checkpoint (expected format {CHECKPOINT_FORMAT!r})")
-    changed = differences(state["settings"], settings)
+    found = {**state["settings"], "train_reid": {**LATER_KEYS, **state["settings"]["train_reid"]}}
+    changed = differences(found, settings)
     if changed:
         raise ValueError(f"cannot resume {path} with other settings: {changed}")
     return state
 
 
 def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) -> dict[str, float]:
-    """Train on every fold but `fold`, evaluate on `fold`; returns the held-out metrics (see evaluation)."""
+    """Train on every fold but `fold`, evaluate on `fold`; returns the held-out metrics (see evaluation).
+
+    Launched in several processes (torchrun, a SLURM job of several tasks) they train one network;
+    rank 0 alone evaluates, writes the fold's folder and the MLflow run; every process returns its metrics.
+    """
     t = cfg.train_reid
-    out = Path(cfg.output_dir) / f"fold{fold}"
-    out.mkdir(parents=True, exist_ok=True)
-    torch.manual_seed(t.seed)
-    if t.threads:
-        torch.set_num_threads(t.threads)
-    device = resolve_device(t.device)
-    cropper: Cropper = instantiate(cfg.model.crop)
-    net = instantiate(cfg.model.net)
-    data = _crops(cfg, fold, cropper)
-    loader = _loader(data, cropper, t)
-    head = CosineSoftmax(feature_dim=net.feature_dim, num_classes=len(data.train_table.names))
-    settings = training_settings(cfg, fold)
-    checkpoint = out / "last.pt"
-    resume_state = _resume_state(cfg, checkpoint, settings, fold)
-    with start_run(
+    with process_group(t.device, key="train_reid.device") as world:
+        out = Path(cfg.output_dir) / f"fold{fold}"
+        if world.is_main:
+            out.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(t.seed)
+        if t.threads:
+            torch.set_num_threads(t.threads)
+        device = process_device(t.device, world, key="train_reid.device")
+        cropper: Cropper = instantiate(cfg.model.crop)
+        net = instantiate(cfg.model.net)
+        data = _crops(cfg, fold, cropper)
+        loader = _loader(data, cropper, t)
+        head = CosineSoftmax(feature_dim=net.feature_dim, num_classes=len(data.train_table.names))
+        settings = training_settings(cfg, fold)
+        checkpoint = out / "last.pt"
+        resume_state = _resume_state(cfg, checkpoint, settings, fold)
+        with _fold_run(cfg, fold, parent_run_id, resume_state, world) as active:
+            run_id = active.info.run_id if active is not None else None
+
+            def save_state(state: dict) -> None:
+                extra = {"format": CHECKPOINT_FORMAT, "settings": settings, "mlflow_run_id": run_id}
+                save_checkpoint(checkpoint, state | extra)
+
+            log_metrics_step(data.sizes, step=0)
+            started = time.perf_counter()
+            stats = fit(
+                net,
+                head,
+                loader,
+                epochs=t.epochs,
+                lr=t.lr,
+                weight_decay=t.weight_decay,
+                warmup_epochs=t.warmup_epochs,
+                device=device,
+                autocast=autocast_dtype(device, t.amp),
+                sync_bn=t.sync_bn,
+                on_epoch=partial(_log_epoch, fold, t.epochs),
+                save_state=save_state,
+                resume_state=resume_state,
+            )
+            train_seconds = time.perf_counter() - started
+            trained, train_stats = (net, cropper, device), {**stats, "train_seconds": train_seconds}
+            metrics = _finish(cfg, fold, trained, data, out, train_stats) if world.is_main else None
+        return broadcast_object(metrics, world)
+
+
+def _fold_run(
+    cfg: DictConfig, fold: int, parent_run_id: str | None, resume_state: dict | None, world: World
+) -> AbstractContextManager:
+    """The fold's MLflow run on rank 0 (None on the others), the one of the resumed checkpoint when
+    there is one."""
+    if not world.is_main:
+        return nullcontext(None)
+    return start_run(
         cfg,
         run_name=f"fold{fold}",
         parent_run_id=parent_run_id,
         tags={"fold": str(fold)},
         continue_run_id=resume_state and resume_state.get("mlflow_run_id"),
-    ) as active:
-        run_id = active.info.run_id if active is not None else None
+    )
 
-        def save_state(state: dict) -> None:
-            extra = {"format": CHECKPOINT_FORMAT, "settings": settings, "mlflow_run_id": run_id}
-            save_checkpoint(checkpoint, state | extra)
 
-        log_metrics_step(data.sizes, step=0)
-        started = time.perf_counter()
-        stats = fit(
-            net,
-            head,
-            loader,
-            epochs=t.epochs,
-            lr=t.lr,
-            weight_decay=t.weight_decay,
-            warmup_epochs=t.warmup_epochs,
-            device=device,
-            autocast=autocast_dtype(device, t.amp),
-            on_epoch=partial(_log_epoch, fold, t.epochs),
-            save_state=save_state,
-            resume_state=resume_state,
-        )
-        train_seconds = time.perf_counter() - started
-        weights = out / "reid.pt"
-        save_weights(
-            weights, net.cpu(), net_kwargs=_kwargs(cfg.model.net), crop_kwargs=_kwargs(cfg.model.crop)
-        )
-        encoder = Encoder(net, cropper, device=device, batch_size=t.eval_batch_size)
-        metrics = _evaluate(cfg, fold, encoder, data, out)
-        metrics |= {**data.sizes, **stats, "train_seconds": train_seconds}
-        log_metrics_step(metrics, step=t.epochs)
-        atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
-        for path in (out / "distances.png", out / "metrics.json", out / "distances.npz"):
-            log_artifact_file(path)
-        log_artifact_file(weights, "weights")
+def _finish(
+    cfg: DictConfig,
+    fold: int,
+    trained: tuple[torch.nn.Module, Cropper, torch.device],
+    data: _FoldCrops,
+    out: Path,
+    train_stats: dict[str, float],
+) -> dict[str, float]:
+    """After training the (network, cropper, device) of `trained`: its weights, the held-out evaluation
+    and its files in `out` and in MLflow; the metrics with the data sizes and `train_stats`."""
+    net, cropper, device = trained
+    weights = out / "reid.pt"
+    save_weights(weights, net.cpu(), net_kwargs=_kwargs(cfg.model.net), crop_kwargs=_kwargs(cfg.model.crop))
+    encoder = Encoder(net, cropper, device=device, batch_size=cfg.train_reid.eval_batch_size)
+    metrics = _evaluate(cfg, fold, encoder, data, out)
+    metrics |= {**data.sizes, **train_stats}
+    log_metrics_step(metrics, step=cfg.train_reid.epochs)
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+    for path in (out / "distances.png", out / "metrics.json", out / "distances.npz"):
+        log_artifact_file(path)
+    log_artifact_file(weights, "weights")
     return metrics
 
 
@@ -160,8 +196,8 @@ def _crops(cfg: DictConfig, fold: int, cropper: Cropper) -> _FoldCrops:
 
 
 def _loader(data: _FoldCrops, cropper: Cropper, t: DictConfig) -> DataLoader:
-    """Shuffled, augmented batches of the training crops; the order comes from the loader's own seeded
-    generator, so that a resumed training draws the same batches."""
+    """Shuffled, augmented batches of the training crops (this process's shares of them); the order
+    comes from the loader's own seeded generator, so that a resumed training draws the same batches."""
     augment = jitter_augment(height=cropper.height, width=cropper.width, **t.augment)
     dataset = CropDataset(
         data.train_crops,
@@ -171,14 +207,7 @@ def _loader(data: _FoldCrops, cropper: Cropper, t: DictConfig) -> DataLoader:
         augment=augment,
         seed=t.seed,
     )
-    return DataLoader(
-        dataset,
-        batch_size=t.batch_size,
-        shuffle=True,
-        drop_last=len(dataset) >= t.batch_size,
-        num_workers=t.workers,
-        generator=torch.Generator().manual_seed(t.seed),
-    )
+    return shuffled_loader(dataset, batch_size=t.batch_size, seed=t.seed, workers=t.workers)
 
 
 def _resume_state(cfg: DictConfig, checkpoint: Path, settings: dict, fold: int) -> dict | None:
