@@ -84,22 +84,37 @@ DEFAULT_DATA := data/space_default
 $(DEFAULT_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data
 
-train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on FOLD (default 3), train on the rest; ARGS="model=yolov5s_gam enhance=dwt_hsv"
-	$(PY) -m spacetrack.train fold=$(FOLD) $(ARGS)
+# GPUS=N: train one model in N processes, one per GPU (torchrun, DistributedDataParallel), after checking
+# that there are N GPUs; the processes share one Hydra run folder
+GPUS ?=
+RUN_STAMP := $(shell date +%Y-%m-%d_%H-%M-%S)
+TORCHRUN = $(VENV)/bin/torchrun --standalone --nproc_per_node=$(GPUS)
+gpu_check = $(PY) -m spacetrack.engine.distributed $(GPUS) $(1)
+launch = $(if $(GPUS),$(call gpu_check,$(2)) && $(TORCHRUN) -m $(1) hydra.run.dir=outputs/$(3)/$(RUN_STAMP),$(PY) -m $(1))
+
+train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on FOLD (default 3), train on the rest; GPUS=N on N GPUs; ARGS="model=yolov5s_gam enhance=dwt_hsv"
+	$(call launch,spacetrack.train,train.trainer.device,train) fold=$(FOLD) $(ARGS)
 
 PRETRAIN_DATA := data/space_pretrain
 
 $(PRETRAIN_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data data=pretrain seed=1000
 
-pretrain: $(STAMP) $(PRETRAIN_DATA)/manifest.json ## pretrain YOLOv5s and YOLOv5s+GAM (DWT/HSV) side by side, one core each -> weights/*_pretrained.pt; resumable
+pretrain: $(STAMP) $(PRETRAIN_DATA)/manifest.json ## pretrain YOLOv5s and YOLOv5s+GAM (DWT/HSV) side by side, one core each (GPUS=N: in turn on N GPUs) -> weights/*_pretrained.pt; resumable
 	@mkdir -p outputs/pretrain
+ifneq ($(GPUS),)
+	$(call gpu_check,train.trainer.device)
+	$(TORCHRUN) -m spacetrack.pretrain hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s $(ARGS)
+	$(TORCHRUN) -m spacetrack.pretrain model=yolov5s_gam enhance=dwt_hsv \
+		hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s_gam $(ARGS)
+else
 	$(PY) -m spacetrack.pretrain train.threads=1 $(ARGS) > outputs/pretrain/yolov5s.log 2>&1 & plain=$$!; \
 	$(PY) -m spacetrack.pretrain model=yolov5s_gam enhance=dwt_hsv train.threads=1 $(ARGS) \
 		> outputs/pretrain/yolov5s_gam.log 2>&1 & gam=$$!; \
 	echo "pretraining both models; progress in outputs/pretrain/yolov5s.log and yolov5s_gam.log"; \
 	wait $$plain; a=$$?; wait $$gam; b=$$?; tail -n 2 outputs/pretrain/yolov5s.log outputs/pretrain/yolov5s_gam.log; \
 	test $$a -eq 0 -a $$b -eq 0
+endif
 
 detector-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## per-fold detector results, plain and improved, per scenario -> experiments/detector_cv (FOLDS="3 4")
 	$(PY) experiments/detector_cv/run.py --folds $(or $(FOLDS),0 1 2 3 4 5 6 7 8) -- $(ARGS)
@@ -131,8 +146,8 @@ eval-motion: $(STAMP) $(MOTION_DATA)/manifest.json ## score the motion detectors
 bench-motion: $(STAMP) ## time every motion detector per 640x480 frame against OpenCV MOG2 (Table 3) -> reports/motion.json
 	$(PY) benchmarks/bench_motion.py $(ARGS)
 
-train-reid: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the re-ID CNN (Table 1): evaluate on FOLD's unseen identities (default 3); ARGS="train_reid=full"
-	$(PY) -m spacetrack.train_reid fold=$(FOLD) $(ARGS)
+train-reid: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the re-ID CNN (Table 1): evaluate on FOLD's unseen identities (default 3); GPUS=N on N GPUs; ARGS="train_reid=full"
+	$(call launch,spacetrack.train_reid,train_reid.device,train_reid) fold=$(FOLD) $(ARGS)
 
 cv-reid: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the re-ID CNN (Hydra multirun, one MLflow parent run)
 	$(PY) -m spacetrack.train_reid -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
