@@ -12,7 +12,7 @@ ARGS ?=
 .PHONY: train cv bench-detector pretrain detector-cv bench-train
 .PHONY: eval-motion bench-motion
 .PHONY: train-reid cv-reid bench-reid
-.PHONY: track track-cv sweep bench-pipeline table4 slew-data score-breakdown
+.PHONY: track track-cv sweep bench-pipeline table4 slew-data track-slew score-breakdown
 
 help: ## list the targets
 	@grep -hE '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:[^#]*## /\t/' | \
@@ -173,6 +173,11 @@ $(SLEW_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data 'data/scenario=[slew]' data.name=slew seed=5 data.num_sequences=4 data.num_folds=2
 
 slew-data: $(SLEW_DATA)/manifest.json ## a slewing-camera render with parked objects (seed 5, 4 sequences) -> data/slew
+
+track-slew: $(SLEW_DATA)/manifest.json ## ground-truth boxes through the tracker on the slewing render, FN/FP by cause -> experiments/score_breakdown/slew_deepsort_original.*
+	$(PY) -m spacetrack.track data.name=slew sequence=all detector=ground_truth tracker=deepsort_original \
+		reid.weights=weights/reid_fold3.pt output_dir=outputs/slew/track video=false logger.experiment=slew $(ARGS)
+	$(PY) experiments/score_breakdown/run.py --dataset $(SLEW_DATA) --results outputs/slew/track --name slew_deepsort_original
 
 score-breakdown: $(STAMP) ## FN/FP by cause per scenario of a Table 4 row's tracks -> experiments/score_breakdown (ROW=gt_deepsort_original)
 	$(PY) experiments/score_breakdown/run.py --results outputs/table4/$(or $(ROW),gt_deepsort_original) \

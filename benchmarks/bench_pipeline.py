@@ -36,6 +36,7 @@ from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import DetectionStream, GroundTruthDetector, StageTimer, YoloDetector
+from spacetrack.pipeline.build import build_dynamic_filter
 from spacetrack.pipeline.cache import CachedSequence
 from spacetrack.pipeline.runner import cached_frames
 from spacetrack.pipeline.sources import FrameSource, sequence_source
@@ -148,7 +149,7 @@ def main() -> None:
             detector=detector,
             encoder=encoders[backend],
             motion=instantiate(cfg.motion, parallel=parallel_fusion),
-            dynamic_filter=instantiate(cfg.dynamic),
+            dynamic_filter=build_dynamic_filter(cfg),
             overlap_motion=overlap,
             overlap_reid=overlap_reid,
             reid_min_score=cfg.reid.min_score,
@@ -188,7 +189,7 @@ def main() -> None:
             num_frames=len(frames),
             blobs=[r.blobs for r in recorded],
         )
-        tracker, dynamic_filter = instantiate(cfg.tracker), instantiate(cfg.dynamic)
+        tracker, dynamic_filter = instantiate(cfg.tracker), build_dynamic_filter(cfg)
         start = time.perf_counter()  # the dynamic flags come from the cached blobs, as in `make track`
         for item in cached_frames(from_cache, dynamic_filter, None):
             tracker.step(

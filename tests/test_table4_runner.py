@@ -92,6 +92,16 @@ def test_the_dynamic_hold_counts_only_where_it_acts():
     assert table4.settings_hash(paper) == table4.settings_hash(paper + ["dynamic_hold.min_iou=0.9"])
 
 
+def test_offline_rows_hash_apart_and_offline_keys_count_only_when_enabled():
+    online = table4.piece_overrides("gt_deepsort_original", 0, [])
+    offline = table4.piece_overrides("gt_deepsort_original_offline", 0, [])
+    assert "OFFLINE" in table4.ROWS["gt_deepsort_original_offline"][0]
+    assert table4.settings_hash(offline) != table4.settings_hash(online)
+    assert table4.settings_hash(offline) != table4.settings_hash(offline + ["offline.max_gap=5"])
+    # off, the offline keys do not act: the online pieces keep the hash they had before the option existed
+    assert table4.settings_hash(online) == table4.settings_hash(online + ["offline.max_gap=5"])
+
+
 @pytest.fixture
 def results_dir(tmp_path, monkeypatch):
     """The runner's results and tables under tmp_path, pieces 'tracked' by a stub that counts its calls."""
@@ -177,3 +187,10 @@ def test_scenarios_pool_mota_exactly_and_weight_hota_by_boxes(results_dir):
         table.split("## HOTA\n")[1].split("## MOTA / HOTA")[0],
     )
     assert "`gt_sort`" in mota_table and "`gt_sort`" not in hota_table
+
+
+def test_the_paper_rows_run_the_reference_matching_and_the_track_rows_reacquire():
+    paper = table4.piece_overrides("gam_deepsort_paper", 0, [])
+    track = table4.piece_overrides("gt_deepsort_original", 0, [])
+    assert "tracker.reacquire_gate=null" in paper  # the reference matching
+    assert table4.settings_hash(track) != table4.settings_hash(track + ["tracker.reacquire_gate=null"])

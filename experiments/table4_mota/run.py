@@ -54,6 +54,7 @@ YOLO = ["detector=yolo", "detector_run.model=none", "enhance=none"]
 GAM = ["detector=yolo", "detector_run.model=after_sppf", "enhance=dwt_hsv"]
 # The paper's pipeline: the per-frame filter, no camera motion in the tracker.
 PAPER = ["tracker.camera_motion=false", "tracker.output_box=state"]
+REFERENCE_MATCHING = ["tracker.reacquire_gate=null"]  # DeepSORT's two matching stages, no re-acquisition
 NOFILTER = ["dynamic_filter=false"] + PAPER
 PAPER_FILTER = ["dynamic_filter=frame", "dynamic_hold.frames=0"] + PAPER  # the paper's per-frame filter
 HOLD = ["dynamic_filter=frame", "dynamic_hold.frames=30"] + PAPER
@@ -65,24 +66,31 @@ TRACK = [
 # No fold's own re-ID network is in this checkout's MLflow store: the ground-truth DeepSORT rows use the
 # shipped one (trained with fold 3 held out; on the other folds it has seen the identities).
 SHIPPED_REID = ["reid.weights=weights/reid_fold3.pt"]
+# Beyond the paper and never live: conf/track.yaml's offline post-processing (tracking.offline) after each
+# sequence; its rows say OFFLINE and stand apart from the online ones.
+OFFLINE = ["offline.enabled=true"]
 # row name -> (what the paper's Table 4 calls it, overrides of conf/track.yaml)
 ROWS: dict[str, tuple[str, list[str]]] = {
-    "yolo_deepsort_original": ("original DeepSORT settings, plain YOLOv5s", YOLO + ["tracker=deepsort_original"] + PAPER_FILTER),
-    "yolo_deepsort_paper": ("paper settings (Table 2), plain YOLOv5s", YOLO + ["tracker=deepsort_paper"] + PAPER_FILTER),
-    "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"] + PAPER_FILTER),
-    "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"] + PAPER_FILTER),
-    "gam_deepsort_paper_hold": ("the paper's method, filter with a 30-frame hold (beyond the paper)", GAM + ["tracker=deepsort_paper"] + HOLD),
-    "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER),
+    "yolo_deepsort_original": ("original DeepSORT settings, plain YOLOv5s", YOLO + ["tracker=deepsort_original"] + PAPER_FILTER + REFERENCE_MATCHING),
+    "yolo_deepsort_paper": ("paper settings (Table 2), plain YOLOv5s", YOLO + ["tracker=deepsort_paper"] + PAPER_FILTER + REFERENCE_MATCHING),
+    "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"] + PAPER_FILTER + REFERENCE_MATCHING),
+    "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"] + PAPER_FILTER + REFERENCE_MATCHING),
+    "gam_deepsort_paper_hold": ("the paper's method, filter with a 30-frame hold (beyond the paper)", GAM + ["tracker=deepsort_paper"] + HOLD + REFERENCE_MATCHING),
+    "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER + REFERENCE_MATCHING),
     "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
     "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings, track-level decision (online)", GT + ["tracker=deepsort_original"] + TRACK + SHIPPED_REID),
     "gt_deepsort_paper": ("ground-truth boxes, paper settings, track-level decision (online)", GT + ["tracker=deepsort_paper"] + TRACK + SHIPPED_REID),
-    "gt_deepsort_original_frame": ("ground-truth boxes, original DeepSORT settings, the paper's per-frame filter", GT + ["tracker=deepsort_original"] + PAPER_FILTER + SHIPPED_REID),
-    "gt_deepsort_paper_frame": ("ground-truth boxes, paper settings, the paper's per-frame filter", GT + ["tracker=deepsort_paper"] + PAPER_FILTER + SHIPPED_REID),
-    "gt_deepsort_paper_nofilter": ("ground-truth boxes, paper settings, no filter", GT + ["tracker=deepsort_paper"] + NOFILTER + SHIPPED_REID),
+    "gt_deepsort_original_frame": ("ground-truth boxes, original DeepSORT settings, the paper's per-frame filter", GT + ["tracker=deepsort_original"] + PAPER_FILTER + REFERENCE_MATCHING + SHIPPED_REID),
+    "gt_deepsort_paper_frame": ("ground-truth boxes, paper settings, the paper's per-frame filter", GT + ["tracker=deepsort_paper"] + PAPER_FILTER + REFERENCE_MATCHING + SHIPPED_REID),
+    "gt_deepsort_paper_nofilter": ("ground-truth boxes, paper settings, no filter", GT + ["tracker=deepsort_paper"] + NOFILTER + REFERENCE_MATCHING + SHIPPED_REID),
     "gt_sort": ("ground-truth boxes, SORT", GT + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
     "gt_sort_hold": ("ground-truth boxes, SORT, filter with a 30-frame hold (beyond the paper)", GT + ["tracker=sort", "reid.weights=none"] + HOLD),
     "gt_sort_nofilter": ("ground-truth boxes, SORT, no dynamic-target filter", GT + ["tracker=sort", "reid.weights=none"] + NOFILTER),
     "gt_sort_track": ("ground-truth boxes, SORT, track-level decision (online)", GT + ["tracker=sort", "reid.weights=none"] + TRACK),
+    "gt_deepsort_original_nonms": ("ground-truth boxes, original DeepSORT settings with NMS off (1.0, as the paper's), track-level decision (online)", GT + ["tracker=deepsort_original", "tracker.nms_max_overlap=1.0"] + TRACK + SHIPPED_REID),
+    "gt_deepsort_original_offline": ("ground-truth boxes, original DeepSORT settings, track-level decision, OFFLINE: backfill + gap interpolation (beyond the paper)", GT + ["tracker=deepsort_original"] + TRACK + OFFLINE + SHIPPED_REID),
+    "gt_deepsort_paper_offline": ("ground-truth boxes, paper settings, track-level decision, OFFLINE: backfill + gap interpolation (beyond the paper)", GT + ["tracker=deepsort_paper"] + TRACK + OFFLINE + SHIPPED_REID),
+    "gam_deepsort_original_offline": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV, OFFLINE: backfill + gap interpolation (beyond the paper)", GAM + ["tracker=deepsort_original"] + PAPER_FILTER + REFERENCE_MATCHING + OFFLINE),
 }  # fmt: skip
 # BoxMOT's trackers (`make peers`) with BoxMOT's default settings, in the pipeline of the DeepSORT rows they
 # stand beside: on ground-truth boxes that of `gt_deepsort_original` (track-level decision, our camera shift
@@ -113,7 +121,7 @@ GROUPS = {
 SHOWN = ("mota", "hota", "deta", "assa", "idf1", "motp", "idsw", "fp", "fn")
 # The parts of conf/track.yaml that change a piece's numbers, and keys within them that change only speed.
 RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic", "dynamic_hold",
-               "dynamic_filter", "dynamic_track", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
+               "dynamic_filter", "dynamic_track", "offline", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
 SPEED_ONLY = frozenset({"device", "threads", "onnx_dir", "parallel", "batch_size"})
 
 
@@ -166,8 +174,10 @@ def _without_unused(settings: dict) -> dict:
         del settings["dynamic_hold"]  # no hold (or no filter to hold)
     if mode != "track":
         del settings["dynamic_track"]
-    for key, before in (("camera_motion", False), ("output_box", "state")):
-        if settings["tracker"].get(key) == before:
+    if not settings["offline"]["enabled"]:
+        del settings["offline"]  # online
+    for key, before in (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None)):
+        if key in settings["tracker"] and settings["tracker"][key] == before:
             del settings["tracker"][key]
     return settings
 

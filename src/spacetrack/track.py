@@ -11,7 +11,6 @@ import json
 import logging
 from pathlib import Path
 
-import hydra
 import torch
 from omegaconf import DictConfig
 
@@ -21,7 +20,13 @@ from spacetrack.evaluation import OVERALL, evaluate
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.dynamic import DynamicHold
-from spacetrack.pipeline.build import build_motion_stream, build_stream, cache_key, resolve_weights
+from spacetrack.pipeline.build import (
+    build_dynamic_filter,
+    build_motion_stream,
+    build_stream,
+    cache_key,
+    resolve_weights,
+)
 from spacetrack.pipeline.cache import DetectionCache
 from spacetrack.pipeline.runner import SequenceResult, build_tracker, filter_mode, run_source
 from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
@@ -120,7 +125,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
                 tracker=build_tracker(cfg),
                 make_stream=make_stream,
                 make_motion_stream=lambda: build_motion_stream(cfg),
-                dynamic_filter=hydra.utils.instantiate(cfg.dynamic),
+                dynamic_filter=build_dynamic_filter(cfg),
                 cache=cache,
                 key=cache_key(cfg, weights, source),
                 mode=mode,

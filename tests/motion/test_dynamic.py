@@ -58,3 +58,17 @@ def test_bad_thresholds():
         DynamicFilter(min_coverage=1.5)
     with pytest.raises(ValueError, match="max_distance"):
         DynamicFilter(max_distance=-1)
+
+
+def test_a_blob_marks_only_boxes_near_its_best_iou_with_min_share_of_best():
+    # A mover (29x61) passes in front of a parked object (20x24): its blob covers the parked box too.
+    blob = Blob((130.0, 190.0), (116, 160, 29, 61), 1700.0)
+    boxes = np.array([[117, 160, 29, 61], [113, 160, 20, 24]], float)  # the mover, the parked object
+    assert DynamicFilter()(boxes, [blob]).tolist() == [True, True]  # the paper's test
+    assert DynamicFilter(min_share_of_best=0.5)(boxes, [blob]).tolist() == [True, False]
+    # two movers side by side in one blob: both near its best IoU, both marked
+    pair = np.array([[100, 100, 10, 10], [111, 100, 10, 10]], float)
+    merged = Blob((110.5, 105.0), (100, 100, 21, 10), 200.0)
+    assert DynamicFilter(min_share_of_best=0.5)(pair, [merged]).tolist() == [True, True]
+    with pytest.raises(ValueError, match="min_share_of_best"):
+        DynamicFilter(min_share_of_best=1.5)

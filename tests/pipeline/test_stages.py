@@ -178,3 +178,13 @@ def test_an_error_in_the_overlapped_reid_reaches_the_caller():
 
     with pytest.raises(RuntimeError, match="on purpose"):
         list(_stream(encoder=failing).run(_source(3)))
+
+
+def test_the_blob_test_takes_min_share_of_best_in_track_mode_only():
+    from spacetrack.config import compose_config
+    from spacetrack.pipeline.build import build_dynamic_filter
+
+    track = compose_config("track", ["dynamic_filter=track", "dynamic_track.min_share_of_best=0.4"])
+    assert build_dynamic_filter(track).min_share_of_best == 0.4
+    frame = compose_config("track", ["dynamic_filter=frame", "dynamic_track.min_share_of_best=0.4"])
+    assert build_dynamic_filter(frame).min_share_of_best == 0.0  # the paper's per-frame test

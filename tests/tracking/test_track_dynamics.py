@@ -122,7 +122,8 @@ def test_a_frame_without_texture_gets_no_shift_and_is_logged_once(caplog):
 @pytest.mark.parametrize(
     ("key", "value"),
     [("window", 0), ("window", -3), ("min_blob_ratio", 1.5), ("min_blob_ratio", -0.1), ("min_blob_hits", 0),
-     ("min_displacement", 0.0), ("min_displacement_height", -1.0)],
+     ("min_displacement", 0.0), ("min_displacement_height", -1.0), ("min_displacement_camera", -0.1),
+     ("min_share_of_best", 1.5)],
 )  # fmt: skip
 def test_out_of_range_settings_are_an_error_naming_the_key(key, value):
     with pytest.raises(ValueError, match=rf"dynamic_track\.{key} must be .*got {value}"):
@@ -155,3 +156,56 @@ def test_under_a_moving_camera_masks_on_a_parked_object_no_longer_make_it_dynami
     assert not set().union(*run(frames, dynamics=TrackDynamics(), camera_motion="auto"))
     trusting = run(frames, dynamics=TrackDynamics(blobs_when_camera_moves=True), camera_motion="auto")
     assert set().union(*trusting)  # trusting the masks, it is output
+
+
+def test_a_parked_object_cut_down_by_a_passing_mover_stays_static():
+    # A mover goes up through a parked 20x24 object; while it passes, the parked box is cut from below
+    # (its visible part shrinks to 3x3 px and grows back), which moves the box centre by up to 8 px.
+    # No blob on the parked object: only its trajectory could make it dynamic, and its edges do not move
+    # the same way.
+    frames = []
+    for f in range(40):
+        mover = (112, 230 - 4 * f, 26, 60)
+        cut = int(np.clip(24 - abs(f - 18) * 3, 0, 21))  # rows hidden from below, 0 .. 21
+        parked = (113, 160, 20 - (cut * 17) // 21, 24 - cut)
+        frames.append(([mover, parked], np.array([True, False]), None))
+    out = run(frames, dynamics=TrackDynamics())
+    shown = set().union(*out)
+    assert len(shown) == 1 and all(abs(box[0] - 112) < 2 for o in out for box in o.values())
+
+
+def test_a_box_that_translates_moves_by_the_shift_its_edges_share():
+    from spacetrack.tracking.dynamic import shared_shift
+
+    anchor = np.array([10.0, 10.0, 30.0, 40.0])  # x1, y1, x2, y2
+    assert shared_shift(anchor, anchor + [5, -3, 5, -3]) == pytest.approx(np.hypot(5, 3))
+    assert shared_shift(anchor, anchor + [2, 0, 6, 0]) == pytest.approx(2.0)  # grew while moving right
+    assert shared_shift(anchor, [10, 20, 30, 40]) == 0.0  # cut from the top: the centre moves 5 px
+    assert shared_shift(anchor, [12, 12, 28, 38]) == 0.0  # shrank on every side
+
+
+def test_an_edge_on_the_image_border_leaves_the_other_edge_to_tell_the_motion():
+    from spacetrack.tracking.dynamic import free_edges, shared_shift
+
+    anchor = np.array([300.0, 0.0, 306.0, 1.0])  # a target coming into view at the top: 6x1 px
+    now = np.array([296.0, 0.0, 306.0, 13.0])  # 12 px further in, its top edge still on the border
+    assert shared_shift(anchor, now) == 0.0  # every edge counted: the top one pins it
+    free = free_edges([296, 0, 10, 13], (640, 480)) & free_edges([300, 0, 6, 1], (640, 480))
+    assert free.tolist() == [True, False, True, True]
+    assert shared_shift(anchor, now, free) == pytest.approx(12.0)
+    assert free_edges([0, 0, 640, 480], None).all()
+
+
+def test_a_parked_object_under_a_long_slew_with_a_drifting_shift_estimate_stays_static():
+    # The camera slews 2 px/frame for 150 frames; the estimated shift falls 4 % short, so in scene
+    # coordinates the parked object drifts 12 px by the end. A mover at 1 px/frame against the scene still
+    # becomes dynamic.
+    for share, parked_dynamic in ((0.1, False), (0.0, True)):
+        dynamics = TrackDynamics(min_displacement_camera=share)
+        parked, mover = dynamics.new_evidence(), dynamics.new_evidence()
+        for f in range(150):
+            true, estimated = np.array([2.0 * f, 0.0]), np.array([1.92 * f, 0.0])
+            dynamics.observe(parked, np.r_[200 + true, 16, 16], estimated, False, camera_moving=True)
+            dynamics.observe(mover, np.r_[300 + true + [f, 0], 16, 16], estimated, False, camera_moving=True)
+        assert parked.dynamic is parked_dynamic
+        assert mover.dynamic

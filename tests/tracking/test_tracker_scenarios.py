@@ -110,3 +110,33 @@ def test_sort_preset_tracks_by_iou_alone():
     frames = [[(100 + 2 * f, 100, 20, 40, f % 4)] for f in range(8)]  # appearance changes every frame
     out = run(frames, max_cosine_distance=None, nn_budget=None, max_age=1)
     assert all(o.keys() == {1} for o in out[2:])
+
+
+def _occluded_target(other_target_at=None):
+    """A target moving 3 px/frame right, hidden for frames 20-39, back from frame 40 with another
+    appearance (feature 1, as a partly visible re-ID crop looks); optionally a second target (feature 2)
+    that appears at x = `other_target_at` while the first is hidden."""
+    frames = []
+    for f in range(60):
+        dets = [] if 20 <= f < 40 else [(100 + 3 * f, 100, 20, 40, 0 if f < 20 else 1)]
+        if other_target_at is not None and f >= 30:
+            dets.append((other_target_at, 300, 20, 40, 2))
+        frames.append(dets)
+    return frames
+
+
+def test_a_target_back_from_an_occlusion_keeps_its_identity_with_reacquire_gate():
+    reference = run(_occluded_target())
+    assert set(reference[10]) != set(reference[50])  # the reference's appearance gate turns it away
+    out = run(_occluded_target(), reacquire_gate=13.8155)
+    assert set(out[10]) == set(out[50]) == {1}
+    assert abs(out[50][1][0] - (100 + 3 * 50)) < 2
+
+
+def test_reacquire_gate_leaves_a_new_target_far_from_the_prediction_its_own_track():
+    out = run(_occluded_target(other_target_at=400), reacquire_gate=13.8155)
+    assert set(out[10]) == {1} and 1 in out[50]
+    (new,) = ids_near(out[50], 400)
+    assert new != 1
+    with pytest.raises(ValueError, match="reacquire_gate"):
+        DeepSort(**ORIGINAL, reacquire_gate=0.0)

@@ -46,10 +46,19 @@ class DynamicFilter:
         min_coverage: ... and the same blob's box covers at least this fraction of the box (0-1);
         max_distance: or if some blob's centroid lies within this many pixels of the box centre;
             0 turns the distance test off.
+        min_share_of_best: a blob marks a box it passes the tests for only if its IoU with the box is at
+            least this share (0-1) of its best IoU with any box it passes: a mover's blob that spills over
+            a parked object the mover passes then marks the mover alone, while two movers that share one
+            blob are both marked. 0: every box it passes (the paper's test).
     """
 
     def __init__(
-        self, *, min_overlap: float = 0.3, min_coverage: float = 0.1, max_distance: float = 8.0
+        self,
+        *,
+        min_overlap: float = 0.3,
+        min_coverage: float = 0.1,
+        max_distance: float = 8.0,
+        min_share_of_best: float = 0.0,
     ) -> None:
         if not 0 < min_overlap <= 1:
             raise ValueError(f"min_overlap must lie in (0, 1], got {min_overlap}")
@@ -59,7 +68,10 @@ class DynamicFilter:
             raise ValueError(f"max_distance must be >= 0 pixels, got {max_distance}")
         self.min_overlap = min_overlap
         self.min_coverage = min_coverage
+        if not 0 <= min_share_of_best <= 1:
+            raise ValueError(f"min_share_of_best must lie in [0, 1], got {min_share_of_best}")
         self.max_distance = max_distance
+        self.min_share_of_best = float(min_share_of_best)
 
     def __call__(self, boxes_tlwh: np.ndarray, blobs: list[Blob]) -> np.ndarray:
         """(N,) bool: True where box i (tlwh pixels) is a moving target."""
@@ -68,13 +80,16 @@ class DynamicFilter:
             return np.zeros(len(boxes), dtype=bool)
         others = blob_boxes(blobs)
         overlapping = overlap_min_area(boxes, others) >= self.min_overlap
-        dynamic = (overlapping & (coverage(boxes, others) >= self.min_coverage)).any(axis=1)
+        passes = overlapping & (coverage(boxes, others) >= self.min_coverage)  # (N boxes, M blobs)
         if self.max_distance > 0:
             centres = boxes[:, :2] + boxes[:, 2:] / 2
             centroids = np.array([b.centroid for b in blobs])
             dist = np.linalg.norm(centres[:, None, :] - centroids[None, :, :], axis=2)
-            dynamic |= (dist <= self.max_distance).any(axis=1)
-        return dynamic
+            passes |= dist <= self.max_distance
+        if self.min_share_of_best > 0:
+            iou = np.where(passes, iou_matrix(boxes, others), 0.0)
+            passes &= iou >= self.min_share_of_best * iou.max(axis=0, keepdims=True)
+        return passes.any(axis=1)
 
     def select(self, detections: np.ndarray, blobs: list[Blob]) -> np.ndarray:
         """The rows of a detection array (`tracking.io` layout, box `tlwh` at `data.layout.BOX`) that move."""

@@ -16,8 +16,10 @@ from omegaconf import DictConfig
 from spacetrack.config import resolved_dict
 from spacetrack.device import resolve_device
 from spacetrack.io import file_hash
+from spacetrack.motion.dynamic import DynamicFilter
 from spacetrack.onnx_backend import check_backend
 from spacetrack.pipeline.cache import CacheKey, config_hash
+from spacetrack.pipeline.runner import filter_mode
 from spacetrack.pipeline.sources import FrameSource
 from spacetrack.pipeline.stages import DetectionStream
 from spacetrack.pipeline.timing import StageTimer
@@ -126,6 +128,13 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
     )
 
 
+def build_dynamic_filter(cfg: DictConfig) -> DynamicFilter:
+    """The per-box blob test (`dynamic`), with the track-level decision's `min_share_of_best` in its mode."""
+    if filter_mode(cfg.dynamic_filter) != "track":
+        return instantiate(cfg.dynamic)
+    return instantiate(cfg.dynamic, min_share_of_best=cfg.dynamic_track.min_share_of_best)
+
+
 def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = None) -> DetectionStream:
     """The per-frame stages: loads the networks."""
     from spacetrack.reid import Encoder
@@ -148,7 +157,7 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
         detector=instantiate(cfg.detector, **extra),
         encoder=encoder,
         motion=instantiate(cfg.motion),
-        dynamic_filter=instantiate(cfg.dynamic),
+        dynamic_filter=build_dynamic_filter(cfg),
         timer=timer,
         overlap_motion=cfg.overlap_motion,
         overlap_reid=cfg.overlap_reid,
@@ -173,6 +182,6 @@ def build_motion_stream(cfg: DictConfig) -> DetectionStream:
         detector=_NoBoxes(),
         encoder=None,
         motion=instantiate(cfg.motion),
-        dynamic_filter=instantiate(cfg.dynamic),
+        dynamic_filter=build_dynamic_filter(cfg),
         overlap_motion=False,
     )

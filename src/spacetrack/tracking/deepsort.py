@@ -36,6 +36,8 @@ class DeepSort:
         tracks that move; None outputs every confirmed track.
     output_box: state (the reference: the Kalman state's box) or detection (the matched detection's box
         on frames with one).
+    reacquire_gate: beyond the reference, a last matching stage for confirmed tracks by the predicted
+        box centre alone (see `Tracker`); None: none.
     """
 
     def __init__(
@@ -54,6 +56,7 @@ class DeepSort:
         camera_motion: bool | str = False,
         dynamics: TrackDynamics | None = None,
         output_box: str = "state",
+        reacquire_gate: float | None = None,
     ) -> None:
         metric = None
         if max_cosine_distance is not None:
@@ -69,6 +72,7 @@ class DeepSort:
             gating_threshold=gating_threshold,
             dynamics=dynamics,
             output_box=output_box,
+            reacquire_gate=reacquire_gate,
         )
         self.camera = CameraMotion(camera_motion)
         self.min_confidence = min_confidence
@@ -115,6 +119,7 @@ class DeepSort:
             Detections.create(tlwh, confidence, feature, dynamic),
             (float(offset[0]), float(offset[1])),
             camera_moving=self.camera.moving,
+            frame_size=None if image is None else (image.shape[1], image.shape[0]),
         )
         return track_rows(self.tracker.outputs())
 

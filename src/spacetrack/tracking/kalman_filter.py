@@ -78,14 +78,18 @@ class KalmanFilter:
         return new_mean, new_cov
 
     def gating_distance(
-        self, mean: np.ndarray, covariance: np.ndarray, measurements: np.ndarray
+        self, mean: np.ndarray, covariance: np.ndarray, measurements: np.ndarray, only_position: bool = False
     ) -> np.ndarray:
         """Eq. (11): squared Mahalanobis distances of `measurements` (M, 4) `xyah` to each track.
 
         `mean` (T, 8) and `covariance` (T, 8, 8) give a (T, M) matrix; a single track gives (M,).
+        only_position: over the box centre (x, y) alone (2 degrees of freedom instead of 4).
         """
         projected_mean, projected_cov = self.project(mean, covariance)
         measurements = np.asarray(measurements, dtype=float).reshape(-1, _NDIM)
+        if only_position:
+            projected_mean, projected_cov = projected_mean[..., :2], projected_cov[..., :2, :2]
+            measurements = measurements[:, :2]
         chol = np.linalg.cholesky(projected_cov)
         diff = measurements - projected_mean[..., None, :]  # (..., M, 4)
         z = np.linalg.solve(chol, np.swapaxes(diff, -1, -2))  # L z = d, so |z|^2 = d^T S^-1 d

@@ -174,7 +174,8 @@ class PeerTracker:
         self._matched = rows[source >= 0]
         if self.dynamics is None:
             return rows
-        moving = self._observe(ids, source, tlwh, dynamic)
+        size = None if image is None else (image.shape[1], image.shape[0])
+        moving = self._observe(ids, source, tlwh, dynamic, size)
         self._static = rows[~moving]
         return rows[moving]
 
@@ -207,7 +208,12 @@ class PeerTracker:
         return cv2.cvtColor(image, code)
 
     def _observe(
-        self, ids: np.ndarray, source: np.ndarray, tlwh: np.ndarray, dynamic: np.ndarray | None
+        self,
+        ids: np.ndarray,
+        source: np.ndarray,
+        tlwh: np.ndarray,
+        dynamic: np.ndarray | None,
+        frame_size: tuple[int, int] | None,
     ) -> np.ndarray:
         """Add the matched detections to their tracks' motion evidence; (T,) bool, the tracks that move."""
         flags = np.ones(len(tlwh), bool) if dynamic is None else np.asarray(dynamic, bool).reshape(-1)
@@ -215,6 +221,11 @@ class PeerTracker:
             evidence = self.evidence.setdefault(int(track_id), self.dynamics.new_evidence())
             if d >= 0:
                 self.dynamics.observe(
-                    evidence, tlwh[d], self.camera.offset, bool(flags[d]), camera_moving=self.camera.moving
+                    evidence,
+                    tlwh[d],
+                    self.camera.offset,
+                    bool(flags[d]),
+                    camera_moving=self.camera.moving,
+                    frame_size=frame_size,
                 )
         return np.array([self.evidence[int(i)].dynamic for i in ids], dtype=bool)

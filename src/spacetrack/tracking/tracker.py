@@ -1,9 +1,15 @@
 """The multi-target tracker: predict, associate (cascade on eq. 15, then IoU), update, manage tracks.
 
 Beyond the reference: `predict` can move every prediction by the camera's scene shift of the frame
-(camera-motion compensation as BoT-SORT does it, here a translation), and with `dynamics` the tracker
-decides per track what moves and outputs only the dynamic tracks (`tracking.dynamic`). With neither, it is
-the reference DeepSORT.
+(camera-motion compensation as BoT-SORT does it, here a translation); with `dynamics` the tracker
+decides per track what moves and outputs only the dynamic tracks (`tracking.dynamic`); with
+`reacquire_gate` a confirmed track that neither stage matched gets a last chance by where its Kalman
+filter expects it. With none of them, it is the reference DeepSORT.
+
+Why the last stage: a target that comes out from behind an occluder reappears as a small, partly visible
+box whose appearance is far from the features its track gathered, so the cascade's appearance gate turns
+it away, and the IoU stage only serves tracks lost one frame ago. The reference then starts a new track
+(an identity switch) although the detection lies where the old track predicts it.
 """
 
 from __future__ import annotations
@@ -35,6 +41,11 @@ class Tracker:
         confirmed track (the reference).
     output_box: "state", the Kalman state's box (the reference); "detection", the box of the detection
         matched in this frame (the state's box on a frame without one).
+    reacquire_gate: after the cascade and the IoU stage, the confirmed tracks still unmatched and the
+        detections left are assigned (Hungarian) on the squared Mahalanobis distance of the box centre
+        alone, pairs above this gate rejected (the chi-square quantiles of 2 degrees of freedom:
+        5.99 for 0.95, 13.8 for 0.999);
+        None: no such stage (the reference).
     """
 
     def __init__(
@@ -48,12 +59,16 @@ class Tracker:
         gating_threshold: float = CHI2_95_4DOF,
         dynamics: TrackDynamics | None = None,
         output_box: str = "state",
+        reacquire_gate: float | None = None,
     ) -> None:
         if not 0.0 <= lambda_ <= 1.0:
             raise ValueError(f"lambda_ must lie in [0, 1], got {lambda_}")
         if output_box not in OUTPUT_BOXES:
             raise ValueError(f"tracker.output_box must be one of {OUTPUT_BOXES}, got {output_box!r}")
+        if reacquire_gate is not None and not reacquire_gate > 0:
+            raise ValueError(f"tracker.reacquire_gate must be > 0 or null, got {reacquire_gate}")
         self.output_box = output_box
+        self.reacquire_gate = reacquire_gate
         self.metric = metric
         self.max_iou_distance = max_iou_distance
         self.max_age = max_age
@@ -65,6 +80,7 @@ class Tracker:
         self.tracks: list[Track] = []
         self._next_id = 1
         self._camera_moving = False
+        self._frame_size: tuple[int, int] | None = None
 
     def predict(self, shift: tuple[float, float] = (0.0, 0.0)) -> None:
         """Move every track one frame ahead (call once per frame, before `update`).
@@ -86,14 +102,15 @@ class Tracker:
         offset: tuple[float, float] = (0.0, 0.0),
         *,
         camera_moving: bool = False,
+        frame_size: tuple[int, int] | None = None,
     ) -> None:
         """Associate this frame's `detections`, update matched tracks, age the others, start new ones.
 
         offset: the scene's displacement (x, y pixels) in this frame since the first one, for the motion
         evidence of `dynamics`; camera_moving: whether the camera has been found moving (`dynamics` may
-        then stop trusting the blobs).
+        then stop trusting the blobs); frame_size: the image's (width, height), if known.
         """
-        self._camera_moving = camera_moving
+        self._camera_moving, self._frame_size = camera_moving, frame_size
         matches, unmatched_tracks, unmatched_detections = self._match(detections)
         if matches:
             t_idx, d_idx = map(list, zip(*matches, strict=True))
@@ -157,6 +174,7 @@ class Tracker:
             offset,
             detections.dynamic[d],
             camera_moving=self._camera_moving,
+            frame_size=self._frame_size,
         )
 
     @staticmethod
@@ -207,6 +225,12 @@ class Tracker:
         cost[np.array([t.time_since_update > 1 for t in tracks])] = INFTY_COST
         return cost
 
+    def _position_cost(self, detections: Detections, track_idx: list[int], det_idx: list[int]) -> np.ndarray:
+        """Squared Mahalanobis distance of the detections' box centres to the tracks' predicted ones."""
+        tracks = [self.tracks[i] for i in track_idx]
+        xyah = detections.subset(det_idx).to_xyah()
+        return self.kf.gating_distance(*self._states(tracks), xyah, only_position=True)
+
     def _match(self, detections: Detections) -> tuple[list[tuple[int, int]], list[int], list[int]]:
         confirmed = [i for i, t in enumerate(self.tracks) if t.is_confirmed()]
         unconfirmed = [i for i, t in enumerate(self.tracks) if not t.is_confirmed()]
@@ -235,4 +259,19 @@ class Tracker:
             iou_candidates,
             unmatched_detections,
         )
-        return matches_a + matches_b, sorted(set(unmatched_a + unmatched_b)), unmatched_detections
+        unmatched = sorted(set(unmatched_a + unmatched_b))
+        if self.reacquire_gate is None:
+            return matches_a + matches_b, unmatched, unmatched_detections
+        lost = [k for k in unmatched if self.tracks[k].is_confirmed()]
+        matches_c, _, unmatched_detections = min_cost_matching(
+            lambda t, d: self._position_cost(detections, t, d),
+            self.reacquire_gate,
+            lost,
+            unmatched_detections,
+        )
+        taken = {k for k, _ in matches_c}
+        return (
+            matches_a + matches_b + matches_c,
+            [k for k in unmatched if k not in taken],
+            unmatched_detections,
+        )
