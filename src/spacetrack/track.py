@@ -21,6 +21,7 @@ from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.dynamic import DynamicHold
 from spacetrack.pipeline.build import (
+    Weights,
     build_dynamic_filter,
     build_motion_stream,
     build_stream,
@@ -30,6 +31,7 @@ from spacetrack.pipeline.build import (
 from spacetrack.pipeline.cache import DetectionCache
 from spacetrack.pipeline.runner import SequenceResult, build_tracker, filter_mode, run_source
 from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
+from spacetrack.pipeline.stages import DetectionStream
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.track_detections import rows_as_mot
 from spacetrack.tracking.offline import OfflineSettings
@@ -85,6 +87,77 @@ def offline_settings(cfg: DictConfig) -> OfflineSettings | None:
     )
 
 
+class _LazyStream:
+    """The per-frame stages, built (networks loaded) on the first source that is not cached, once."""
+
+    def __init__(self, cfg: DictConfig, weights: Weights) -> None:
+        self.cfg, self.weights, self.stream = cfg, weights, None
+
+    def __call__(self) -> DetectionStream:
+        if self.stream is None:
+            if self.cfg.threads:
+                torch.set_num_threads(int(self.cfg.threads))
+            self.stream = build_stream(self.cfg, self.weights, StageTimer())
+        self.stream.timer = StageTimer()
+        return self.stream
+
+
+def _check_reid(cfg: DictConfig, weights: Weights) -> None:
+    if weights.reid is None and cfg.tracker.get("max_cosine_distance") is not None:
+        raise ValueError(
+            "reid.weights=none gives no appearance features, but the tracker matches by appearance; "
+            "use tracker=sort (or tracker.max_cosine_distance=null)"
+        )
+
+
+def _track_source(
+    cfg: DictConfig,
+    source: FrameSource,
+    weights: Weights,
+    stream: _LazyStream,
+    cache: DetectionCache | None,
+    out_dir: Path,
+) -> SequenceResult:
+    """One source through the pipeline with a fresh tracker."""
+    mode = filter_mode(cfg.dynamic_filter)
+    return run_source(
+        source,
+        tracker=build_tracker(cfg),
+        make_stream=stream,
+        make_motion_stream=lambda: build_motion_stream(cfg),
+        dynamic_filter=build_dynamic_filter(cfg),
+        cache=cache,
+        key=cache_key(cfg, weights, source),
+        mode=mode,
+        hold=DynamicHold(**cfg.dynamic_hold) if mode == "frame" else None,
+        offline=offline_settings(cfg),
+        out_dir=out_dir,
+        video=cfg.video,
+        progress=cfg.progress,
+    )
+
+
+def _sequence_metrics(cfg: DictConfig, result: SequenceResult, gt_path: Path | None, pairs: dict) -> dict:
+    """Speed, and the scores against `gt_path` when there is one (its (gt, hyp) pair added to `pairs`)."""
+    metrics = {"fps": result.num_frames / result.wall_seconds, **result.timings}
+    if gt_path is None:
+        return metrics
+    gt = read_mot(gt_path)
+    pairs[result.name] = (gt[gt[:, 0] <= result.num_frames], rows_as_mot(result.rows))
+    scores = evaluate(
+        {result.name: pairs[result.name]}, iou_threshold=cfg.iou_threshold, min_visibility=cfg.min_visibility
+    )[result.name]
+    return metrics | {k: scores[k] for k in SCORES}
+
+
+def _log_sequence(result: SequenceResult, metrics: dict) -> None:
+    log_metrics_step({f"{result.name}/{k}": v for k, v in metrics.items()}, step=0)
+    log_artifact_file(result.mot_path, "results")
+    if result.video_path is not None:
+        log_artifact_file(result.video_path, "video")
+    log.info("%s: %s", result.name, _brief(metrics))
+
+
 def run(cfg: DictConfig) -> dict[str, float]:
     """Track every selected source; return the overall scores (when there is ground truth) and timings.
 
@@ -94,63 +167,19 @@ def run(cfg: DictConfig) -> dict[str, float]:
     """
     sources = select_sources(cfg)
     weights = resolve_weights(cfg)
-    if weights.reid is None and cfg.tracker.get("max_cosine_distance") is not None:
-        raise ValueError(
-            "reid.weights=none gives no appearance features, but the tracker matches by appearance; "
-            "use tracker=sort (or tracker.max_cosine_distance=null)"
-        )
+    _check_reid(cfg, weights)
     out_dir = Path(cfg.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cache = DetectionCache(cache_folder(cfg), rebuild=cfg.cache.rebuild) if cfg.cache.enabled else None
-    built: list = []
-
-    def make_stream():
-        if not built:  # the networks load once, and only if some source is not cached
-            if cfg.threads:
-                torch.set_num_threads(int(cfg.threads))
-            built.append(build_stream(cfg, weights, StageTimer()))
-        built[0].timer = StageTimer()
-        return built[0]
-
-    mode = filter_mode(cfg.dynamic_filter)
+    stream = _LazyStream(cfg, weights)  # the networks load once, and only if some source is not cached
     run_name = f"fold{cfg.fold}" if cfg.fold is not None and cfg.sequence is None else None
     results: list[SequenceResult] = []
-    pairs = {}
-    metrics: dict[str, float] = {}
+    pairs: dict = {}
     with start_run(cfg, run_name=run_name or sources[0][0].name, parent_run_id=cfg.sweep_parent_run_id):
         for source, gt_path in sources:
-            source = limit(source, cfg.max_frames)
-            result = run_source(
-                source,
-                tracker=build_tracker(cfg),
-                make_stream=make_stream,
-                make_motion_stream=lambda: build_motion_stream(cfg),
-                dynamic_filter=build_dynamic_filter(cfg),
-                cache=cache,
-                key=cache_key(cfg, weights, source),
-                mode=mode,
-                hold=DynamicHold(**cfg.dynamic_hold) if mode == "frame" else None,
-                offline=offline_settings(cfg),
-                out_dir=out_dir,
-                video=cfg.video,
-                progress=cfg.progress,
-            )
+            result = _track_source(cfg, limit(source, cfg.max_frames), weights, stream, cache, out_dir)
             results.append(result)
-            seq_metrics = {"fps": result.num_frames / result.wall_seconds, **result.timings}
-            if gt_path is not None:
-                gt = read_mot(gt_path)
-                pairs[result.name] = (gt[gt[:, 0] <= result.num_frames], rows_as_mot(result.rows))
-                scores = evaluate(
-                    {result.name: pairs[result.name]},
-                    iou_threshold=cfg.iou_threshold,
-                    min_visibility=cfg.min_visibility,
-                )[result.name]
-                seq_metrics |= {k: scores[k] for k in SCORES}
-            log_metrics_step({f"{result.name}/{k}": v for k, v in seq_metrics.items()}, step=0)
-            log_artifact_file(result.mot_path, "results")
-            if result.video_path is not None:
-                log_artifact_file(result.video_path, "video")
-            log.info("%s: %s", result.name, _brief(seq_metrics))
+            _log_sequence(result, _sequence_metrics(cfg, result, gt_path, pairs))
         metrics = summary(results, pairs, cfg)
         log_metrics_step(metrics, step=0)
         atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2) + "\n")
