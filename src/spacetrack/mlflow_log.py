@@ -29,7 +29,7 @@ import mlflow
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from mlflow.entities import RunStatus
+from mlflow.entities import Run, RunStatus
 from mlflow.exceptions import MlflowException
 from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
 from omegaconf import DictConfig, OmegaConf
@@ -220,34 +220,27 @@ def start_run(
     previous = find_run(continue_run_id)
     if previous is not None and previous.info.experiment_id != experiment_id:
         previous = None
-    config_text = OmegaConf.to_yaml(cfg, resolve=True)
     point = sweep_point(cfg) if parent_run_id is not None else {}
     if point:
         run_name = point_name(point)
         tags = {"swept": ",".join(point), **point, **(tags or {})}
+    nested = nested or parent_run_id is not None
     if previous is not None:
-        resumes = int(previous.data.tags.get("resumes", "0")) + 1
         # MLflow refuses to reopen a run of another experiment than the process's active one
         mlflow.set_experiment(experiment_id=previous.info.experiment_id)
-        run = mlflow.start_run(run_id=previous.info.run_id, nested=nested or parent_run_id is not None)
+        run = mlflow.start_run(run_id=previous.info.run_id, nested=nested)
     else:
         run = mlflow.start_run(
             experiment_id=experiment_id,
             run_name=run_name,
             parent_run_id=parent_run_id,
-            nested=nested or parent_run_id is not None,
+            nested=nested,
             tags={**_git_tags(), **(tags or {})},
         )
     seen = {"terminated": False}
     try:
         with _sigterm_interrupts(seen):
-            if previous is not None:
-                mlflow.set_tags({**_git_tags(), "resumes": str(resumes)})
-                mlflow.log_text(config_text, f"config_resume{resumes}.yaml")
-            else:
-                params = flatten_params(resolved_dict(cfg))
-                mlflow.log_params({**{k: params[k] for k in point if k in params}, **params})
-                mlflow.log_text(config_text, "config.yaml")
+            _log_config(cfg, previous, point)
             yield run
     except KeyboardInterrupt:
         mlflow.end_run(RunStatus.to_string(RunStatus.KILLED))
@@ -257,6 +250,20 @@ def start_run(
         mlflow.end_run(RunStatus.to_string(RunStatus.KILLED if seen["terminated"] else RunStatus.FAILED))
         raise
     mlflow.end_run(RunStatus.to_string(RunStatus.FINISHED))
+
+
+def _log_config(cfg: DictConfig, previous: Run | None, point: Mapping[str, str]) -> None:
+    """The active run's config: its params and `config.yaml` on a new run (the swept keys first), or on
+    a reopened one (`previous`) the `resumes` count and `config_resume<n>.yaml`."""
+    config_text = OmegaConf.to_yaml(cfg, resolve=True)
+    if previous is not None:
+        resumes = int(previous.data.tags.get("resumes", "0")) + 1
+        mlflow.set_tags({**_git_tags(), "resumes": str(resumes)})
+        mlflow.log_text(config_text, f"config_resume{resumes}.yaml")
+        return
+    params = flatten_params(resolved_dict(cfg))
+    mlflow.log_params({**{k: params[k] for k in point if k in params}, **params})
+    mlflow.log_text(config_text, "config.yaml")
 
 
 def log_artifact_file(path: str | Path, artifact_path: str | None = None) -> None:
