@@ -103,20 +103,10 @@ def fit(
             loader.dataset.epoch = epoch
         counts = torch.zeros(3, dtype=torch.float64)  # loss sum, correct, crops
         for crops, labels in loader:
-            crops, labels = crops.to(device), labels.to(device)
             for group in optimizer.param_groups:
                 group["lr"] = lr_at(step, total=total, warmup=warmup, lr=lr)
-            with torch.autocast(device.type, dtype=autocast, enabled=autocast is not None):
-                logits = model(crops).float()
-            loss = F.cross_entropy(logits, labels)
-            optimizer.zero_grad(set_to_none=True)
-            scaler.scale(loss).backward()
-            scaler.step(optimizer)
-            scaler.update()
+            counts += _train_step(model, optimizer, scaler, crops.to(device), labels.to(device), autocast)
             step += 1
-            counts += torch.tensor(
-                [loss.item() * len(labels), int((logits.argmax(1) == labels).sum()), len(labels)]
-            )
         stats = _epoch_stats(sum_across(counts, world), optimizer, head)
         if world.is_main and on_epoch is not None:
             on_epoch(epoch, stats)
@@ -125,6 +115,26 @@ def fit(
     net.eval()
     head.eval()
     return stats
+
+
+def _train_step(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    scaler: torch.amp.GradScaler,
+    crops: torch.Tensor,
+    labels: torch.Tensor,
+    autocast: torch.dtype | None,
+) -> torch.Tensor:
+    """One optimiser step on a batch; returns (loss sum, correct, crops) of the batch as float64."""
+    with torch.autocast(crops.device.type, dtype=autocast, enabled=autocast is not None):
+        logits = model(crops).float()
+    loss = F.cross_entropy(logits, labels)
+    optimizer.zero_grad(set_to_none=True)
+    scaler.scale(loss).backward()
+    scaler.step(optimizer)
+    scaler.update()
+    correct = int((logits.argmax(1) == labels).sum())
+    return torch.tensor([loss.item() * len(labels), correct, len(labels)], dtype=torch.float64)
 
 
 class _Classifier(nn.Module):
