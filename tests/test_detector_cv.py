@@ -55,6 +55,18 @@ def test_a_run_is_reused_only_with_the_same_enhancement_and_training(train_confi
     assert study.matching_run(train_config("enhance=none", "weights=none")) is None  # another start
 
 
+def test_a_run_made_before_a_training_key_existed_matches_that_keys_earlier_value(train_config, tmp_path):
+    weights = tmp_path / "best.pt"
+    weights.write_bytes(b"weights")
+    cfg = train_config("enhance=none")
+    older = train_config("enhance=none")
+    with open_dict(older):
+        del older.train.trainer["sync_bn"]  # as the runs made before the key was added logged it
+    run_id = finished_run(older, weights, 0.4)
+    assert study.matching_run(cfg)[0] == run_id
+    assert study.matching_run(train_config("enhance=none", "train.trainer.sync_bn=true")) is None
+
+
 def test_table_lists_each_fold_and_the_means_per_scenario():
     def piece(slug, fold, map50, dim):
         overall = {"map50": map50, "map50_95": map50 / 2, "recall_at_score": 0.9, "frames": 300}

@@ -21,7 +21,6 @@ import argparse
 import json
 from pathlib import Path
 
-import mlflow
 import numpy as np
 from hydra.utils import instantiate
 from omegaconf import OmegaConf, open_dict
@@ -35,7 +34,7 @@ from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.metrics import detection_metrics
 from spacetrack.engine.validate import evaluate
 from spacetrack.io import atomic_write_text
-from spacetrack.mlflow_log import artifact_file, flatten_params, tracking_uri
+from spacetrack.mlflow_log import artifact_file, finished_runs, flatten_params, tracking_uri
 from spacetrack.train import fit
 
 HERE = Path(__file__).resolve().parent
@@ -49,6 +48,9 @@ VARIANTS = {
 METRICS = ("map50", "map50_95", "recall_at_score")
 # Parameters that do not change what training learns: a run differing only in them is reused.
 NEUTRAL = ("threads", "device", "workers")
+# Training keys added after runs were made, at the value that trains as those runs did: a run without the
+# key matches that value.
+ADDED_LATER = {"train.trainer.sync_bn": "False"}
 
 
 def score(cfg, weights: Path, frame_stride: int) -> dict:
@@ -85,25 +87,19 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
 def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     """(run id, best_* metrics, local best.pt) of the newest finished `detector` run trained exactly as
     `cfg` would be (same fold, data, enhancement, model, start weights and training settings), or None."""
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri(cfg.logger.get("tracking_uri")))
-    experiment = client.get_experiment_by_name(cfg.logger.experiment)
-    if experiment is None:
-        return None
+    uri = tracking_uri(cfg.logger.get("tracking_uri"))
     wanted = {
         k: v
         for k, v in flatten_params(resolved_dict(cfg)).items()
         if (k.startswith(("data.", "enhance.", "model.", "train.")) or k in ("weights", "weights_partial"))
         and not any(n in k for n in NEUTRAL)
     }
-    runs = client.search_runs(
-        [experiment.experiment_id],
-        f"tags.fold = '{cfg.fold}' and attributes.status = 'FINISHED'",
-        order_by=["attributes.start_time DESC"],
-    )
+    runs = finished_runs(cfg.logger.experiment, tags={"fold": str(cfg.fold)}, tracking_uri=uri)
     for found in runs:
         params = found.data.params
-        if all(params.get(k) == v for k, v in wanted.items()) and "best_map50" in found.data.metrics:
-            local = artifact_file(found.info.run_id, "weights/best.pt", tracking_uri=client.tracking_uri)
+        same = all(params.get(k, ADDED_LATER.get(k)) == v for k, v in wanted.items())
+        if same and "best_map50" in found.data.metrics:
+            local = artifact_file(found.info.run_id, "weights/best.pt", tracking_uri=uri)
             metrics = {k[len("best_") :]: v for k, v in found.data.metrics.items() if k.startswith("best_")}
             return found.info.run_id, metrics, local
     return None
