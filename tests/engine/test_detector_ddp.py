@@ -165,7 +165,7 @@ def distributed_worker(root: Path, out: Path) -> None:
         resumed = fit(root, out / "killed", PerImageLoss(), resume_from=last, checkpoint_minutes=0)
 
         writes = count_writes(
-            [(trainer_module, "save_checkpoint"), (training_module, "start_run"), (training_module, "write_png"),
+            [(trainer_module, "save_checkpoint"), (training_module, "start_run"), (training_module, "write_image"),
              (mlflow, "log_metrics"), (mlflow, "log_artifact"), (mlflow, "log_params")]
         )  # fmt: skip
         fold = training_module.train_fold(

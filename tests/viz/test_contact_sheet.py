@@ -50,3 +50,19 @@ def test_fewer_images_than_columns_gives_a_narrower_sheet() -> None:
 def test_bad_input_is_a_clear_error(images: list, kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         contact_sheet(images, **kwargs)
+
+
+def test_write_image_writes_jpeg_or_png_by_suffix_and_refuses_others(tmp_path):
+    import cv2
+
+    from spacetrack.viz.sheet import write_image
+
+    rgb = np.zeros((8, 10, 3), np.uint8)
+    rgb[:, :, 0] = 200  # red
+    for name in ("a.png", "b.jpg"):
+        write_image(tmp_path / name, rgb)
+        back = cv2.cvtColor(cv2.imread(str(tmp_path / name)), cv2.COLOR_BGR2RGB)
+        assert back.shape == rgb.shape and abs(int(back[4, 5, 0]) - 200) <= 3 and back[4, 5, 2] <= 3
+    with pytest.raises(ValueError, match=r"c\.bmp.*\.jpg or \.png"):
+        write_image(tmp_path / "c.bmp", rgb)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.jpg"]  # nothing half-written

@@ -5,13 +5,12 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-import cv2
 import numpy as np
 from matplotlib.figure import Figure
 
 from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_name, read_mot, read_rgb
 from spacetrack.viz.draw import draw_boxes
-from spacetrack.viz.sheet import contact_sheet
+from spacetrack.viz.sheet import contact_sheet, write_image
 
 
 def occlusion_events(records: list[dict]) -> tuple[int, int]:
@@ -94,7 +93,7 @@ def write_contact_sheet(
     sheet = contact_sheet(
         images, cols=min(4, len(images)), labels=captions, tile_width=min(480, images[0].shape[1])
     )
-    cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    write_image(path, sheet)
 
 
 def card_markdown(manifest: dict, stats: dict) -> str:

@@ -12,17 +12,9 @@ import numpy as np
 from spacetrack.data.layout import frame_name
 from spacetrack.data.render import FrameTruth, SequenceRenderer, TruthRow
 from spacetrack.data.scene import ScenePlan
+from spacetrack.viz.sheet import encode_image
 
 Enhancer = Callable[[np.ndarray], np.ndarray]
-
-
-def encode_image(rgb: np.ndarray, ext: str, jpeg_quality: int) -> bytes:
-    """RGB uint8 to JPEG or PNG bytes (OpenCV's encoders are deterministic for the same input)."""
-    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if ext == "jpg" else [cv2.IMWRITE_PNG_COMPRESSION, 3]
-    ok, buf = cv2.imencode(f".{ext}", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params)
-    if not ok:
-        raise RuntimeError(f"OpenCV could not encode a {rgb.shape} image as {ext}")
-    return buf.tobytes()
 
 
 def encode_mask(mask: np.ndarray) -> bytes:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -59,12 +58,3 @@ def prediction_grid(
 def xyxy_to_tlwh(boxes: np.ndarray) -> np.ndarray:
     """(N, 4) `x1, y1, x2, y2` -> `x, y, w, h` (top-left and size)."""
     return np.column_stack((boxes[:, :2], boxes[:, 2:4] - boxes[:, :2])).reshape(-1, 4)
-
-
-def write_png(path: str | Path, rgb: np.ndarray) -> None:
-    """Write an RGB image as PNG atomically."""
-    ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise ValueError(f"cannot encode {path} as PNG")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data.tobytes())

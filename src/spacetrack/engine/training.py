@@ -26,12 +26,13 @@ from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_
 from spacetrack.engine.checkpoint import peek_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
-from spacetrack.engine.plots import plot_pr_curves, prediction_grid, write_png
+from spacetrack.engine.plots import plot_pr_curves, prediction_grid
 from spacetrack.engine.pretrained import load_pretrained, resolve_weights
 from spacetrack.engine.trainer import Trainer, unfinished_checkpoint
 from spacetrack.io import file_hash
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.models.yolo import count_parameters
+from spacetrack.viz.sheet import write_image
 
 REPORTED = ("map50", "map50_95", "precision", "recall", "recall_at_score", "fitness")
 
@@ -219,7 +220,7 @@ def _log_epoch(
     print(" ".join(f"{k}={v:.4g}" for k, v in record.items()), flush=True)
     if is_best:
         plot_pr_curves(details["pr_curves"], class_names, plots / "pr_curve.png")
-        write_png(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
+        write_image(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
 
 
 def _best_epoch(result: dict) -> tuple[dict, dict[str, float]]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import cv2
 import numpy as np
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -29,10 +28,9 @@ from spacetrack.data.layout import (
     read_mot,
     read_rgb,
 )
-from spacetrack.io import atomic_path
 from spacetrack.motion.evaluation import MotionScore
 from spacetrack.motion.frames import to_grey
-from spacetrack.viz.sheet import contact_sheet
+from spacetrack.viz.sheet import contact_sheet, write_image
 
 log = logging.getLogger(__name__)
 
@@ -226,10 +224,4 @@ def write_sheet(path: Path, tiles: list[tuple[str, np.ndarray]], title: str) -> 
     """Tile (label, RGB image) pairs three to a row and write them as JPEG."""
     labels = [f"{title}: {label}" if i == 0 else label for i, (label, _) in enumerate(tiles)]
     sheet = contact_sheet([image for _, image in tiles], cols=3, labels=labels, tile_width=320)
-    with atomic_path(path) as tmp:
-        ok, data = cv2.imencode(
-            ".jpg", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90]
-        )
-        if not ok:
-            raise OSError(f"could not encode {path}")
-        tmp.write_bytes(data.tobytes())
+    write_image(path, sheet)

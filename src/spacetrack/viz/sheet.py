@@ -1,13 +1,15 @@
-"""Contact sheets: many frames tiled into one RGB image, each with an optional caption."""
+"""Contact sheets: many frames tiled into one RGB image, each with an optional caption; image files."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 
 import cv2
 import numpy as np
 
+from spacetrack.io import atomic_path
 from spacetrack.viz.draw import FONT, FONT_SCALE, check_rgb, draw_text
 
 CAPTION_HEIGHT = 16  # pixels under each tile when labels are given
@@ -60,3 +62,24 @@ def contact_sheet(
             _, baseline = cv2.getTextSize(str(labels[index]), FONT, FONT_SCALE, 1)
             draw_text(strip, str(labels[index]), (2, caption - baseline), (255, 255, 255))
     return sheet
+
+
+def encode_image(rgb: np.ndarray, ext: str, jpeg_quality: int = 90) -> bytes:
+    """RGB uint8 to JPEG (`ext` "jpg") or PNG bytes (OpenCV's encoders are deterministic for the same
+    input)."""
+    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if ext == "jpg" else [cv2.IMWRITE_PNG_COMPRESSION, 3]
+    ok, buf = cv2.imencode(f".{ext}", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params)
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {rgb.shape} image as {ext}")
+    return buf.tobytes()
+
+
+def write_image(path: str | Path, rgb: np.ndarray, *, jpeg_quality: int = 90) -> None:
+    """Write an RGB uint8 image atomically, as JPEG or PNG by the file's suffix."""
+    ext = Path(path).suffix.lower().lstrip(".")
+    ext = "jpg" if ext == "jpeg" else ext
+    if ext not in ("jpg", "png"):
+        raise ValueError(f"{path}: images are written as .jpg or .png, not {Path(path).suffix!r}")
+    data = encode_image(rgb, ext, jpeg_quality)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
