@@ -51,3 +51,18 @@ def run_in_processes(worker: Callable, world_size: int, *args, timeout: float = 
             for process in context.processes:
                 process.kill()
             raise TimeoutError(f"{world_size} training processes were not done after {timeout:.0f} s")
+
+
+def count_calls(targets: list[tuple[object, str]]) -> dict[str, int]:
+    """Wrap each (module, function name) so that its calls are counted; the counts by name."""
+    counts: dict[str, int] = {}
+    for owner, name in targets:
+        original = getattr(owner, name)
+        counts[name] = 0
+
+        def counted(*args, _original=original, _name=name, **kwargs):
+            counts[_name] += 1
+            return _original(*args, **kwargs)
+
+        setattr(owner, name, counted)
+    return counts

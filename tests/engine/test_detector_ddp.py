@@ -25,7 +25,7 @@ from omegaconf import open_dict
 from torch import nn
 from torch.utils.data import Dataset
 
-from ddp_helpers import run_in_processes
+from ddp_helpers import count_calls, run_in_processes
 from detector_helpers import loss_for, tiny_model, write_tiny_dataset
 from spacetrack.config import compose_config
 from spacetrack.data.yolo_dataset import YoloDataset
@@ -133,21 +133,6 @@ def fold_config(root: Path, out_dir: Path, uri: str):
     return cfg
 
 
-def count_writes(monkeypatch_targets: list[tuple[object, str]]) -> dict[str, int]:
-    """Wrap each (module, function name) so that its calls are counted; the counts by name."""
-    counts: dict[str, int] = {}
-    for owner, name in monkeypatch_targets:
-        original = getattr(owner, name)
-        counts[name] = 0
-
-        def counted(*args, _original=original, _name=name, **kwargs):
-            counts[_name] += 1
-            return _original(*args, **kwargs)
-
-        setattr(owner, name, counted)
-    return counts
-
-
 def distributed_worker(root: Path, out: Path) -> None:
     """In each of the two processes: the unbroken run, the killed and resumed run, the fold from the
     real config; what each process saw goes to `out/rank<r>.json` (outside the training folders)."""
@@ -164,7 +149,7 @@ def distributed_worker(root: Path, out: Path) -> None:
         last = out / "killed" / "weights" / "last.pt"
         resumed = fit(root, out / "killed", PerImageLoss(), resume_from=last, checkpoint_minutes=0)
 
-        writes = count_writes(
+        writes = count_calls(
             [(trainer_module, "save_checkpoint"), (training_module, "start_run"), (training_module, "write_image"),
              (mlflow, "log_metrics"), (mlflow, "log_artifact"), (mlflow, "log_params")]
         )  # fmt: skip

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.data import TensorDataset
 
-from ddp_helpers import run_in_processes
+from ddp_helpers import count_calls, run_in_processes
 from spacetrack.config import compose_config
 from spacetrack.engine import distributed
 from spacetrack.engine.checkpoint import save_checkpoint
@@ -73,21 +73,6 @@ def fold_overrides(dataset: Path, out: Path) -> list[str]:
     return ["train_reid=smoke", f"dataset={dataset}", f"output_dir={out}", "train_reid.device=cpu",
             "train_reid.frame_stride=2", "train_reid.batch_size=4", "model.net.input_height=32",
             "model.net.input_width=16", "logger=none", "fold=1"]  # fmt: skip
-
-
-def count_calls(targets: list[tuple[object, str]]) -> dict[str, int]:
-    """Wrap each (module, function name) so that its calls are counted; the counts by name."""
-    counts: dict[str, int] = {}
-    for owner, name in targets:
-        original = getattr(owner, name)
-        counts[name] = 0
-
-        def counted(*args, _original=original, _name=name, **kwargs):
-            counts[_name] += 1
-            return _original(*args, **kwargs)
-
-        setattr(owner, name, counted)
-    return counts
 
 
 def distributed_worker(dataset: Path, out: Path) -> None:
