@@ -119,10 +119,18 @@ def variant_config(slug: str, fold: int, overrides: list[str], out: Path = HERE)
     return cfg
 
 
+def recorded_config(cfg) -> str:
+    """`cfg` resolved as YAML, but for the MLflow store, which stays as configured: once a run has
+    started, MLflow puts the absolute store of this machine in the environment the default reads."""
+    recorded = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    recorded.logger.tracking_uri = OmegaConf.to_container(cfg.logger, resolve=False)["tracking_uri"]
+    return OmegaConf.to_yaml(recorded)
+
+
 def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Path) -> dict:
     """Train (or reuse) one variant on one fold and score it."""
     cfg = variant_config(slug, fold, overrides, out)
-    atomic_write_text(out / "configs" / f"{slug}_fold{fold}.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    atomic_write_text(out / "configs" / f"{slug}_fold{fold}.yaml", recorded_config(cfg))
     found = matching_run(cfg)
     if found is None:
         fit(cfg)
