@@ -29,7 +29,7 @@ from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, collate
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.optim import build_optimizer
-from spacetrack.engine.trainer import native_bfloat16
+from spacetrack.engine.precision import native_bfloat16
 from spacetrack.enhance import DwtHsvEnhancer
 from spacetrack.models.yolo import YOLOv5
 

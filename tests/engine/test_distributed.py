@@ -13,8 +13,8 @@ from torch.utils.data import RandomSampler
 from detector_helpers import tiny_model
 from spacetrack.config import CONF_DIR
 from spacetrack.engine import distributed
+from spacetrack.engine.checkpoint import checkpoint_settings
 from spacetrack.engine.distributed import World, batches_per_epoch, shard_of_batches
-from spacetrack.engine.trainer import checkpoint_settings
 
 TWO = [World(rank=0, size=2), World(rank=1, size=2)]
 TORCH_VARIABLES = ("RANK", "WORLD_SIZE", "LOCAL_RANK", "LOCAL_WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT")

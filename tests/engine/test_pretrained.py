@@ -9,8 +9,8 @@ import torch
 
 from detector_helpers import loss_for, tiny_model
 from spacetrack.engine import pretrained
+from spacetrack.engine.precision import autocast_dtype
 from spacetrack.engine.pretrained import HEAD_PREFIX, load_pretrained, resolve_weights
-from spacetrack.engine.trainer import autocast_dtype
 from spacetrack.export_weights import _half
 from spacetrack.models.yolo import YOLOv5
 

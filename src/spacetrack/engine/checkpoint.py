@@ -59,3 +59,37 @@ def load_detector(path: str | Path) -> YOLOv5:
     model = YOLOv5(**state["arch"])
     model.load_state_dict(state["ema"])
     return model.eval()
+
+
+# Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
+RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes")
+# Trainer keywords newer than some checkpoints, with the value those checkpoints were trained with.
+LATER_SETTINGS = {"sync_bn": False}
+
+
+def checkpoint_settings(state: dict[str, Any]) -> dict[str, Any]:
+    """The settings a checkpoint was trained with, `LATER_SETTINGS` filled in for older checkpoints."""
+    return {**LATER_SETTINGS, **state["settings"]}
+
+
+def unfinished_checkpoint(
+    folders: list[str | Path], *, arch: dict[str, Any], settings: dict[str, Any]
+) -> Path | None:
+    """The newest `weights/last.pt` under `folders` that a training with `arch` and `settings` (the
+    trainer's keywords and the run settings) can resume: same architecture and settings, epochs left.
+    Files that are not checkpoints are passed over."""
+    found = [p for folder in folders for p in Path(folder).glob("**/weights/last.pt")]
+    for path in sorted(found, key=lambda p: p.stat().st_mtime, reverse=True):
+        try:
+            state = peek_checkpoint(path)
+        except Exception:
+            continue
+        if not isinstance(state, dict) or not {"arch", "settings", "epoch"} <= set(state):
+            continue
+        if differences(state["arch"], arch) or differences(
+            checkpoint_settings(state), settings, ignore=RESULT_NEUTRAL
+        ):
+            continue
+        if state["epoch"] + 1 < settings["epochs"]:
+            return path
+    return None

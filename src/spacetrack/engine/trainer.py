@@ -22,7 +22,13 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from spacetrack.data.yolo_dataset import collate
-from spacetrack.engine.checkpoint import differences, load_checkpoint, peek_checkpoint, save_checkpoint
+from spacetrack.engine.checkpoint import (
+    RESULT_NEUTRAL,
+    checkpoint_settings,
+    differences,
+    load_checkpoint,
+    save_checkpoint,
+)
 from spacetrack.engine.distributed import (
     World,
     batches_per_epoch,
@@ -37,60 +43,10 @@ from spacetrack.engine.distributed import (
     sum_across,
 )
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
+from spacetrack.engine.precision import autocast_dtype
 from spacetrack.engine.validate import evaluate
 
-# Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
-RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes")
-# Trainer keywords newer than some checkpoints, with the value those checkpoints were trained with.
-LATER_SETTINGS = {"sync_bn": False}
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
-
-
-def native_bfloat16() -> bool:
-    """Whether this CPU computes bfloat16 natively (AVX-512 BF16 or AMX, as oneDNN reports it); elsewhere
-    bfloat16 is emulated and slower than float32."""
-    try:
-        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):
-        return False
-
-
-def autocast_dtype(device: torch.device, amp: bool) -> torch.dtype | None:
-    """What mixed precision runs the forward pass in: float16 on CUDA, bfloat16 on a CPU that has it
-    natively, None (float32) on other CPUs or with `amp` off."""
-    if not amp:
-        return None
-    if device.type == "cuda":
-        return torch.float16
-    return torch.bfloat16 if device.type == "cpu" and native_bfloat16() else None
-
-
-def checkpoint_settings(state: dict[str, Any]) -> dict[str, Any]:
-    """The settings a checkpoint was trained with, `LATER_SETTINGS` filled in for older checkpoints."""
-    return {**LATER_SETTINGS, **state["settings"]}
-
-
-def unfinished_checkpoint(
-    folders: list[str | Path], *, arch: dict[str, Any], settings: dict[str, Any]
-) -> Path | None:
-    """The newest `weights/last.pt` under `folders` that a training with `arch` and `settings` (the
-    trainer's keywords and the run settings) can resume: same architecture and settings, epochs left.
-    Files that are not checkpoints are passed over."""
-    found = [p for folder in folders for p in Path(folder).glob("**/weights/last.pt")]
-    for path in sorted(found, key=lambda p: p.stat().st_mtime, reverse=True):
-        try:
-            state = peek_checkpoint(path)
-        except Exception:
-            continue
-        if not isinstance(state, dict) or not {"arch", "settings", "epoch"} <= set(state):
-            continue
-        if differences(state["arch"], arch) or differences(
-            checkpoint_settings(state), settings, ignore=RESULT_NEUTRAL
-        ):
-            continue
-        if state["epoch"] + 1 < settings["epochs"]:
-            return path
-    return None
 
 
 def fitness(metrics: dict[str, float]) -> float:

@@ -23,12 +23,12 @@ from spacetrack.data.crops import CropDataset
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
-from spacetrack.engine.checkpoint import peek_checkpoint
+from spacetrack.engine.checkpoint import peek_checkpoint, unfinished_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid
 from spacetrack.engine.pretrained import load_pretrained, resolve_weights
-from spacetrack.engine.trainer import Trainer, unfinished_checkpoint
+from spacetrack.engine.trainer import Trainer
 from spacetrack.io import file_hash
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.models.yolo import count_parameters

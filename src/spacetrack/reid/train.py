@@ -78,7 +78,7 @@ def fit(
 
     After each epoch `save_state(state)` gets everything needed to go on; `resume_state` (such a state)
     continues after its epoch. The loader must draw its order from its own `generator`. `autocast`:
-    the mixed-precision type of the forward pass (see `engine.trainer.autocast_dtype`; None: float32).
+    the mixed-precision type of the forward pass (see `engine.precision.autocast_dtype`; None: float32).
     In a distributed training (`shuffled_loader`'s batches, one process per device) the processes train
     together with DistributedDataParallel, BatchNorm synchronised with `sync_bn` (CUDA); the stats are
     those of all processes, and rank 0 alone calls `on_epoch` and `save_state`.

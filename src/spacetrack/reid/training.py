@@ -25,7 +25,7 @@ from spacetrack.config import resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.engine.checkpoint import differences, save_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_device, process_group
-from spacetrack.engine.trainer import autocast_dtype
+from spacetrack.engine.precision import autocast_dtype
 from spacetrack.io import atomic_write_text, load_torch_file
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.reid.crops import Cropper
