@@ -29,7 +29,14 @@ from spacetrack.pipeline.build import (
     resolve_weights,
 )
 from spacetrack.pipeline.cache import DetectionCache
-from spacetrack.pipeline.runner import SequenceResult, build_tracker, filter_mode, run_source
+from spacetrack.pipeline.runner import (
+    SequenceOutput,
+    SequenceResult,
+    TrackingSetup,
+    build_tracker,
+    filter_mode,
+    run_source,
+)
 from spacetrack.pipeline.sources import FrameSource, limit, open_source, sequence_source
 from spacetrack.pipeline.stages import DetectionStream
 from spacetrack.pipeline.timing import StageTimer
@@ -120,21 +127,17 @@ def _track_source(
 ) -> SequenceResult:
     """One source through the pipeline with a fresh tracker."""
     mode = filter_mode(cfg.dynamic_filter)
-    return run_source(
-        source,
+    setup = TrackingSetup(
         tracker=build_tracker(cfg),
         make_stream=stream,
         make_motion_stream=lambda: build_motion_stream(cfg),
         dynamic_filter=build_dynamic_filter(cfg),
-        cache=cache,
-        key=cache_key(cfg, weights, source),
         mode=mode,
         hold=DynamicHold(**cfg.dynamic_hold) if mode == "frame" else None,
         offline=offline_settings(cfg),
-        out_dir=out_dir,
-        video=cfg.video,
-        progress=cfg.progress,
     )
+    output = SequenceOutput(out_dir=out_dir, video=cfg.video, progress=cfg.progress)
+    return run_source(source, setup, output, cache=cache, key=cache_key(cfg, weights, source))
 
 
 def _sequence_metrics(cfg: DictConfig, result: SequenceResult, gt_path: Path | None, pairs: dict) -> dict:

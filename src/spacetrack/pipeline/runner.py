@@ -122,23 +122,9 @@ def build_tracker(cfg: DictConfig) -> DeepSort:
     return instantiate(cfg.tracker, dynamics=dynamics)
 
 
-def run_source(
-    source: FrameSource,
-    *,
-    tracker: DeepSort,
-    make_stream: Callable[[], DetectionStream],
-    make_motion_stream: Callable[[], DetectionStream],
-    dynamic_filter: DynamicFilter,
-    cache: DetectionCache | None,
-    key: CacheKey,
-    mode: str,
-    out_dir: Path,
-    video: bool,
-    progress: bool = True,
-    hold: DynamicHold | None = None,
-    offline: OfflineSettings | None = None,
-) -> SequenceResult:
-    """Track `source`; write `<out_dir>/<name>.txt` (MOT) and, with `video`, `<name>.mp4`.
+@dataclass
+class TrackingSetup:
+    """How one source is tracked.
 
     make_stream: builds the `DetectionStream` (loads the networks) only if the cache cannot serve.
     make_motion_stream: builds a stream of the motion stage alone, for cached detections whose blobs were
@@ -151,30 +137,51 @@ def run_source(
     offline: post-process the whole sequence's tracks (`tracking.offline`) before they are written and
         returned; the video shows the online ones. None: the online tracks.
     """
+
+    tracker: DeepSort
+    make_stream: Callable[[], DetectionStream]
+    make_motion_stream: Callable[[], DetectionStream]
+    dynamic_filter: DynamicFilter
+    mode: str
+    hold: DynamicHold | None = None
+    offline: OfflineSettings | None = None
+
+
+@dataclass
+class SequenceOutput:
+    """Where a tracked source goes: `<out_dir>/<name>.txt` (MOT) and, with `video`, `<name>.mp4`."""
+
+    out_dir: Path
+    video: bool
+    progress: bool = True
+
+    def paths(self, name: str) -> tuple[Path, Path | None]:
+        return self.out_dir / f"{name}.txt", self.out_dir / f"{name}.mp4" if self.video else None
+
+
+def run_source(
+    source: FrameSource,
+    setup: TrackingSetup,
+    output: SequenceOutput,
+    cache: DetectionCache | None = None,
+    key: CacheKey | None = None,
+) -> SequenceResult:
+    """Track `source` as `setup` says and write it to `output`, from the detections `cache` holds under
+    `key` where it has them (and into it where it has not)."""
     started = time.perf_counter()
     cached = cache.load(source.name, key) if cache is not None else None
     rerun_motion = cached is not None and cached.blobs is None  # made with other motion settings
-    images = video or tracker.needs_images
     stream, timer, recorded = _detections(
-        source, cached, make_stream, make_motion_stream, dynamic_filter, keep_images=images
+        source, cached, setup, keep_images=output.video or setup.tracker.needs_images
     )
     # A live source has no length: the bar then shows the frame count and the live frame rate.
-    bar = tqdm(
-        stream, total=source.num_frames, desc=source.name, unit="frame", disable=not progress, leave=False
-    )
-    mot_path, video_path = out_dir / f"{source.name}.txt", out_dir / f"{source.name}.mp4"
-    rows_out, num_frames, matched = _track(
-        bar,
-        source,
-        tracker,
-        mode,
-        hold,
-        timer,
-        video_path=video_path if video else None,
-        matched=offline is not None and offline.backfill,
-    )
-    if offline is not None:
-        rows_out = post_process(rows_out, matched, offline)
+    bar = tqdm(stream, total=source.num_frames, desc=source.name, unit="frame",
+               disable=not output.progress, leave=False)  # fmt: skip
+    mot_path, video_path = output.paths(source.name)
+    matched = setup.offline is not None and setup.offline.backfill
+    rows_out, num_frames, matches = _track(bar, source, setup, timer, video_path=video_path, matched=matched)
+    if setup.offline is not None:
+        rows_out = post_process(rows_out, matches, setup.offline)
     write_mot_results(mot_path, rows_out)
     if cache is not None:
         _update_cache(cache, source.name, key, cached, recorded, rerun_motion, num_frames)
@@ -186,16 +193,14 @@ def run_source(
         wall_seconds=time.perf_counter() - started,
         timings=timer.ms_per_frame(num_frames),
         mot_path=mot_path,
-        video_path=video_path if video and video_path.is_file() else None,
+        video_path=video_path if video_path is not None and video_path.is_file() else None,
     )
 
 
 def _detections(
     source: FrameSource,
     cached: CachedSequence | None,
-    make_stream: Callable[[], DetectionStream],
-    make_motion_stream: Callable[[], DetectionStream],
-    dynamic_filter: DynamicFilter,
+    setup: TrackingSetup,
     *,
     keep_images: bool,
 ) -> tuple[Iterator[FrameDetections], StageTimer, list[FrameDetections]]:
@@ -205,12 +210,13 @@ def _detections(
     or the whole stream."""
     recorded: list[FrameDetections] = []
     if cached is not None and cached.blobs is None:  # the motion stage alone, in step with the tracker
-        motion_stream = make_motion_stream()
+        motion_stream = setup.make_motion_stream()
         motion = motion_stream.run(source, keep_images=keep_images)
-        return cached_frames(cached, dynamic_filter, motion=motion), motion_stream.timer, recorded
+        return cached_frames(cached, setup.dynamic_filter, motion=motion), motion_stream.timer, recorded
     if cached is not None:
-        return cached_frames(cached, dynamic_filter, source if keep_images else None), StageTimer(), recorded
-    detection_stream = make_stream()
+        images = source if keep_images else None
+        return cached_frames(cached, setup.dynamic_filter, images), StageTimer(), recorded
+    detection_stream = setup.make_stream()
     stream = _recording(detection_stream.run(source, keep_images=keep_images), recorded)
     return stream, detection_stream.timer, recorded
 
@@ -218,9 +224,7 @@ def _detections(
 def _track(
     frames: Iterable[FrameDetections],
     source: FrameSource,
-    tracker: DeepSort,
-    mode: str,
-    hold: DynamicHold | None,
+    setup: TrackingSetup,
     timer: StageTimer,
     *,
     video_path: Path | None,
@@ -230,6 +234,7 @@ def _track(
     and, with `matched` (for offline backfill), the same rows of every track
     matched to a detection on each frame. With `video_path`, the annotated frames are written there as
     they come (replacing it at the end)."""
+    tracker, mode, hold = setup.tracker, setup.mode, setup.hold
     annotator, results = Annotator(), []
     matches = [] if matched else None
     if hold is not None:
