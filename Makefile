@@ -66,10 +66,10 @@ format: $(STAMP) ## apply ruff fixes and formatting
 bench-enhance: $(STAMP) ## time the DWT/HSV enhancement per 640x480 frame -> reports/enhance.json
 	$(PY) benchmarks/bench_enhance.py $(ARGS)
 
-track-detections: $(STAMP) ## track one detection file alone: ARGS="detections=IN.npy output=OUT.txt tracker=deepsort_paper"
+track-detections: $(STAMP) ## track one detection file alone: ARGS="detections=IN.npy output_file=OUT.txt tracker=deepsort_paper"
 	$(PY) -m spacetrack.track_detections $(ARGS)
 
-evaluate: $(STAMP) ## score MOT results against a gt.txt: ARGS="results=OUT.txt gt=GT.txt output_json=M.json"
+evaluate: $(STAMP) ## score MOT results against a gt.txt: ARGS="results=OUT.txt gt=GT.txt output_file=M.json"
 	$(PY) -m spacetrack.evaluate $(ARGS)
 
 bench-tracker: $(STAMP) ## time the tracker per frame at 5/20/100 targets vs deep-sort-realtime -> reports/tracker.json

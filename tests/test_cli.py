@@ -64,7 +64,7 @@ def test_malformed_detection_file(tmp_path):
     dets[1, 3] = np.nan
     np.save(tmp_path / "dets.npy", dets)
     result = run_entry(
-        "track_detections", f"detections={tmp_path / 'dets.npy'}", f"output={tmp_path / 'out.txt'}",
+        "track_detections", f"detections={tmp_path / 'dets.npy'}", f"output_file={tmp_path / 'out.txt'}",
         "tracker=sort", "logger=none",
     )  # fmt: skip
     assert_user_error(result, "dets.npy", "row 1")
@@ -150,7 +150,7 @@ def test_summary_line_names_metric_files_and_run_url(tmp_path):
     np.save(tmp_path / "dets.npy", dets)
     store = f"sqlite:///{tmp_path / 'mlflow.db'}"
     result = run_entry(
-        "track_detections", f"detections={tmp_path / 'dets.npy'}", f"output={tmp_path / 'out.txt'}",
+        "track_detections", f"detections={tmp_path / 'dets.npy'}", f"output_file={tmp_path / 'out.txt'}",
         "tracker=sort", f"logger.tracking_uri={store}", env={"PORT": "5123"},
     )  # fmt: skip
     assert result.returncode == 0, result.stderr

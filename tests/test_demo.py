@@ -20,7 +20,7 @@ def test_demo_writes_clip_and_tracks_with_the_shipped_weights(tmp_path, smoke_da
         [
             "data=smoke",
             f"data_root={smoke_dataset.parent}",
-            f"demo_dir={tmp_path / 'demo'}",
+            f"output_dir={tmp_path / 'demo'}",
             "logger=none",
             "progress=false",
             f"track.detector_weights={weights / 'detector_yolov5s_fold3.pt'}",

@@ -23,7 +23,7 @@ def train_config(tmp_path):
 
     def make(*overrides):
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-            cfg = compose("train", overrides=["fold=3", f"out_dir={tmp_path}", f"logger.tracking_uri={uri}",
+            cfg = compose("train", overrides=["fold=3", f"output_dir={tmp_path}", f"logger.tracking_uri={uri}",
                                               *overrides])  # fmt: skip
         with open_dict(cfg):
             cfg.cv_parent_run_id = None

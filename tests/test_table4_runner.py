@@ -45,7 +45,7 @@ def test_missing_models_are_trained_with_the_extra_arguments_then_the_piece_runs
     assert record["metrics"]["mota"] == 0.5
     assert fake_world == [
         ["-m", "spacetrack.train", "fold=2", "model=yolov5s_gam", "resume=auto", "train.threads=1"],
-        ["-m", "spacetrack.train_reid", "fold=2", "resume=true", "train_reid.threads=1"],
+        ["-m", "spacetrack.train_reid", "fold=2", "resume=auto", "train_reid.threads=1"],
     ]
 
 

@@ -112,7 +112,7 @@ def variant_config(slug: str, fold: int, overrides: list[str], out: Path = HERE)
     cfg = compose_config(
         "train",
         [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", f"resume_dirs=[{runs}]",
-         f"out_dir={runs / f'{slug}_fold{fold}'}", *overrides],
+         f"output_dir={runs / f'{slug}_fold{fold}'}", *overrides],
     )  # fmt: skip
     with open_dict(cfg):
         cfg.cv_parent_run_id = None

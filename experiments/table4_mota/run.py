@@ -13,7 +13,7 @@ trains it; run again once it exists. With `--train` the missing model is trained
 same command, plus the `--detector-args` or `--reid-args` overrides) and the piece runs after it: one
 command fills whole folds, and being killed loses little: finished training runs are in MLflow and found
 the next time, and a training stopped part-way goes on from its last epoch (`resume=auto` for the
-detector, `resume=true` for the re-ID). A piece already done is recomputed only when it is stale: when the
+detector and the re-ID). A piece already done is recomputed only when it is stale: when the
 settings that change its numbers (`settings_hash`: data, enhancement, detector, re-ID, tracker, motion
 stage, dynamic filter, scoring) differ from those it was made with; `--redo` recomputes the pieces asked
 for anyway (after a change of code rather than of settings). Stale cells are starred in `table4.md`.
@@ -227,7 +227,7 @@ def sequence_scores(cfg: DictConfig) -> dict[str, dict]:
 
 
 # How each training module picks up a run that was stopped part-way (a no-op when there is none).
-RESUME = {"spacetrack.train": ["resume=auto"], "spacetrack.train_reid": ["resume=true"]}
+RESUME = {"spacetrack.train": ["resume=auto"], "spacetrack.train_reid": ["resume=auto"]}
 
 
 def run_with_models(row: str, fold: int, common: list[str], train_args: dict[str, list[str]] | None) -> dict:

@@ -59,10 +59,10 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError("no scenario selected: choose some with 'data/scenario=[nominal,dim]'")
     if not 0 < d.hfov_deg < 170:
         raise ValueError(f"data.hfov_deg={d.hfov_deg}: expected a field of view in (0, 170) degrees")
-    root = Path(cfg.out_dir).parent
+    root = Path(cfg.dataset_dir).parent
     if not root.is_dir():
         raise FileNotFoundError(
-            f"output folder {root} does not exist (out_dir={cfg.out_dir}); create it first"
+            f"output folder {root} does not exist (dataset_dir={cfg.dataset_dir}); create it first"
         )
 
 
@@ -172,7 +172,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     data_cfg = OmegaConf.to_container(cfg.data, resolve=True)
     enhance_cfg = OmegaConf.to_container(cfg.enhance, resolve=True)
     enhance_name = instantiate(cfg.enhance).name
-    out_dir = Path(cfg.out_dir)
+    out_dir = Path(cfg.dataset_dir)
     entries, records = {}, []
     with atomic_dir(out_dir, overwrite=cfg.overwrite) as tmp:
         jobs = [(s, asdict(table[s["scenario"]]), data_cfg, enhance_cfg, str(tmp)) for s in specs]
@@ -214,7 +214,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return {k: float(v) for k, v in stats.items() if isinstance(v, (int, float))}
 
 
-@cli.entry_point("build_data", files="out_dir")
+@cli.entry_point("build_data", files="dataset_dir")
 def main(cfg: DictConfig) -> dict[str, float]:
     stats = run(cfg)
     return {k: stats[k] for k in ("sequences", "frames", "moving_targets", "static_objects")}

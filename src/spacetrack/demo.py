@@ -37,8 +37,8 @@ MOVING, STATIC, HIDDEN = (255, 50, 50), (60, 230, 60), (150, 150, 150)
 
 
 def dataset_is_current(cfg: DictConfig) -> bool:
-    """Whether out_dir already holds the dataset this config would build (same data config and seed)."""
-    path = Path(cfg.out_dir) / MANIFEST
+    """Whether dataset_dir already holds the dataset this config would build (same data config and seed)."""
+    path = Path(cfg.dataset_dir) / MANIFEST
     if not path.is_file():
         return False
     built = json.loads(path.read_text())["config"]
@@ -96,9 +96,9 @@ def run_pipeline_on(cfg: DictConfig, seq: dict, out_dir: Path) -> dict[str, floa
 def run(cfg: DictConfig) -> dict[str, float]:
     if not dataset_is_current(cfg):
         build_data.run(OmegaConf.merge(cfg, {"overwrite": True}))
-    root = Path(cfg.out_dir)
+    root = Path(cfg.dataset_dir)
     manifest = load_manifest(root)
-    demo_dir = Path(cfg.demo_dir)
+    demo_dir = Path(cfg.output_dir)
     demo_dir.mkdir(parents=True, exist_ok=True)
     sheet = demo_dir / "contact_sheet.jpg"
     shutil.copyfile(root / "contact_sheet.jpg", sheet)
@@ -126,7 +126,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return result
 
 
-@cli.entry_point("demo", files="demo_dir")
+@cli.entry_point("demo", files="output_dir")
 def main(cfg: DictConfig) -> dict[str, float]:
     result = run(cfg)
     return {k: result[k] for k in ("sequences", "mota", "idf1", "idsw") if k in result}

@@ -1,6 +1,6 @@
 """Run the tracker alone on a detection file and write MOT results (no image, network or GPU needed).
 
-python -m spacetrack.track_detections detections=IN.npy output=OUT.txt tracker=deepsort_paper
+python -m spacetrack.track_detections detections=IN.npy output_file=OUT.txt tracker=deepsort_paper
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ log = logging.getLogger(__name__)
 
 
 def run(cfg: DictConfig) -> dict[str, float]:
-    """Track `cfg.detections` with `cfg.tracker`, write `cfg.output`; score against `cfg.gt` if given.
+    """Track `cfg.detections` with `cfg.tracker`, write `cfg.output_file`; score against `cfg.gt` if given.
 
     Returns frame, detection and track counts, the tracker's milliseconds per frame and, with `gt`,
     the overall metrics of `spacetrack.evaluation.summarize`.
     """
-    output = Path(cfg.output)
+    output = Path(cfg.output_file)
     if not output.parent.is_dir():
         raise FileNotFoundError(f"output folder {output.parent} does not exist (writing {output.name})")
     dets = load_detections(cfg.detections)
@@ -71,7 +71,7 @@ def rows_as_mot(rows: np.ndarray) -> np.ndarray:
     return np.hstack([np.asarray(rows, dtype=float).reshape(-1, 6), tail])
 
 
-@cli.entry_point("track_detections", files="output")
+@cli.entry_point("track_detections", files="output_file")
 def main(cfg: DictConfig) -> dict[str, float]:
     metrics = run(cfg)
     return {k: metrics[k] for k in ("mota", "idf1", "num_tracks", "ms_per_frame") if k in metrics}

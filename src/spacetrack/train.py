@@ -21,7 +21,7 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return train_fold(cfg)["metrics"]
 
 
-@cli.entry_point("train", metric="fitness", files="out_dir")
+@cli.entry_point("train", metric="fitness", files="output_dir")
 def main(cfg: DictConfig) -> float:
     return run(cfg)["fitness"]
 

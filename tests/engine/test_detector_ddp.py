@@ -119,7 +119,7 @@ def fold_config(root: Path, out_dir: Path, uri: str):
             f"logger.tracking_uri={uri}",
             f"data_root={root.parent}",
             f"data.name={root.name}",
-            f"out_dir={out_dir}",
+            f"output_dir={out_dir}",
             "fold=3",
             "weights=none",
             "model.width_multiple=0.125",

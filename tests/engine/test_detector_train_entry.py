@@ -20,7 +20,7 @@ def config(tiny_dataset, tmp_path, *overrides):
                 "logger=none",
                 f"data_root={tiny_dataset.parent}",
                 f"data.name={tiny_dataset.name}",
-                f"out_dir={tmp_path / 'run'}",
+                f"output_dir={tmp_path / 'run'}",
                 "train.frame_stride=4",
                 *overrides,
             ],
@@ -122,7 +122,7 @@ def test_cross_validation_parent_gets_mean_and_std(tiny_dataset, tmp_path, monke
         with open_dict(cfg):
             cfg.fold = fold
             cfg.cv_parent_run_id = parent
-            cfg.out_dir = str(tmp_path / f"fold{fold}")
+            cfg.output_dir = str(tmp_path / f"fold{fold}")
         run(cfg)
     callback.on_multirun_end(cfg)
     client = mlflow.MlflowClient(uri)

@@ -15,7 +15,7 @@ def test_scores_a_results_file_prints_a_table_and_writes_json(tmp_path, capsys):
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         cfg = compose(
             config_name="evaluate",
-            overrides=["logger=none", f"gt={gt}", f"results={results}", f"output_json={out}"],
+            overrides=["logger=none", f"gt={gt}", f"results={results}", f"output_file={out}"],
         )
     metrics = run(cfg)
     # 3 counted ground-truth boxes (one is hidden): 2 matched, 1 missed, 1 false positive

@@ -98,9 +98,9 @@ def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
     fold = tmp_path / "out" / "fold1"
     assert (fold / "last.pt").is_file() and not (fold / "reid.pt").exists()
     with pytest.raises(ValueError, match=r"cannot resume .*last\.pt with other settings: .*lr"):
-        run(compose_config("train_reid", [*base, "resume=true", "train_reid.lr=0.01"]))
+        run(compose_config("train_reid", [*base, "resume=auto", "train_reid.lr=0.01"]))
 
-    resumed = run(compose_config("train_reid", [*base, "resume=true"]))
+    resumed = run(compose_config("train_reid", [*base, "resume=auto"]))
     assert resumed["rank1"] == unbroken["rank1"] and resumed["train_loss"] == unbroken["train_loss"]
     a, b = (
         torch.load(p / "fold1" / "reid.pt", weights_only=True)
@@ -118,9 +118,25 @@ def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
 
 def test_resume_without_a_checkpoint_starts_afresh(tiny_dataset, tmp_path) -> None:
     base = overrides(tiny_dataset, tmp_path / "a", "logger=none", "fold=1")
-    metrics = run(compose_config("train_reid", [*base, "resume=true"]))
+    metrics = run(compose_config("train_reid", [*base, "resume=auto"]))
     assert (tmp_path / "a" / "fold1" / "last.pt").is_file()
     assert 0.0 <= metrics["rank1"] <= 1.0
     (tmp_path / "a" / "fold1" / "last.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match=r"last\.pt is not a readable re-ID training checkpoint"):
+        run(compose_config("train_reid", [*base, "resume=auto"]))
+
+
+def test_resume_takes_null_auto_or_a_path_like_the_detector(tiny_dataset, tmp_path) -> None:
+    base = overrides(tiny_dataset, tmp_path / "a", "logger=none", "fold=1")
+    with pytest.raises(ValueError, match=r"resume must be null, auto or the path of a last\.pt, got True"):
         run(compose_config("train_reid", [*base, "resume=true"]))
+    missing = tmp_path / "elsewhere" / "last.pt"
+    with pytest.raises(FileNotFoundError, match=rf"resume={missing}: no such checkpoint"):
+        run(compose_config("train_reid", [*base, f"resume={missing}"]))
+    run(compose_config("train_reid", base))
+    moved = tmp_path / "kept" / "last.pt"
+    moved.parent.mkdir()
+    (tmp_path / "a" / "fold1" / "last.pt").rename(moved)
+    (tmp_path / "a" / "fold1" / "reid.pt").unlink()
+    with pytest.raises(ValueError, match=r"cannot resume .*kept/last\.pt with other settings: .*lr"):
+        run(compose_config("train_reid", [*base, f"resume={moved}", "train_reid.lr=0.01"]))

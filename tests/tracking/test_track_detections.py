@@ -58,7 +58,7 @@ def test_unknown_preset_is_a_clear_error():
 def test_run_writes_mot_results_and_scores_them(tmp_path, preset):
     dets, truth = _write_sequence(tmp_path)
     out = tmp_path / "out.txt"
-    metrics = run(_compose(f"detections={dets}", f"output={out}", f"gt={truth}", f"tracker={preset}"))
+    metrics = run(_compose(f"detections={dets}", f"output_file={out}", f"gt={truth}", f"tracker={preset}"))
     rows = np.loadtxt(out, delimiter=",")
     assert rows.shape[1] == 10 and set(rows[:, 1]) == {1, 2}
     assert (rows[:, 6:] == [1, -1, -1, -1]).all()
@@ -76,7 +76,7 @@ def test_bad_input_writes_nothing(tmp_path):
     np.save(dets, bad)
     out = tmp_path / "out.txt"
     with pytest.raises(ValueError, match=r"dets.npy: row 7, h = 0.0 is not positive"):
-        run(_compose(f"detections={dets}", f"output={out}"))
+        run(_compose(f"detections={dets}", f"output_file={out}"))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dets.npy", "gt.txt"]  # no output, no temp file
 
 
@@ -85,8 +85,8 @@ def test_boxes_without_features_need_the_sort_preset(tmp_path):
     np.save(dets, np.load(dets)[:, :10])
     out = tmp_path / "out.txt"
     with pytest.raises(ValueError, match="dets.npy: no appearance features"):
-        run(_compose(f"detections={dets}", f"output={out}"))
-    metrics = run(_compose(f"detections={dets}", f"output={out}", f"gt={truth}", "tracker=sort"))
+        run(_compose(f"detections={dets}", f"output_file={out}"))
+    metrics = run(_compose(f"detections={dets}", f"output_file={out}", f"gt={truth}", "tracker=sort"))
     assert metrics["idsw"] == 0 and metrics["num_tracks"] == 2
 
 
@@ -94,7 +94,7 @@ def test_run_logs_to_mlflow(tmp_path):
     mlflow = pytest.importorskip("mlflow")
     dets, truth = _write_sequence(tmp_path, num_frames=10)
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    cfg = _compose(f"detections={dets}", f"output={tmp_path / 'out.txt'}", f"gt={truth}")
+    cfg = _compose(f"detections={dets}", f"output_file={tmp_path / 'out.txt'}", f"gt={truth}")
     cfg.logger.enabled, cfg.logger.tracking_uri = True, uri
     run(cfg)
     client = mlflow.MlflowClient(uri)
@@ -106,7 +106,7 @@ def test_run_logs_to_mlflow(tmp_path):
 def test_command_line(tmp_path):
     dets, _ = _write_sequence(tmp_path, num_frames=8)
     out = tmp_path / "out.txt"
-    cmd = [sys.executable, "-m", "spacetrack.track_detections", f"detections={dets}", f"output={out}"]
+    cmd = [sys.executable, "-m", "spacetrack.track_detections", f"detections={dets}", f"output_file={out}"]
     done = subprocess.run(
         [*cmd, "logger=none", "tracker=deepsort_original"], capture_output=True, text=True, cwd=tmp_path
     )

@@ -93,3 +93,15 @@ def unfinished_checkpoint(
         if state["epoch"] + 1 < settings["epochs"]:
             return path
     return None
+
+
+def resume_choice(value: object) -> str | Path | None:
+    """`resume` of a training config, the same for both networks: null (start afresh), `auto` (the
+    training's own unfinished checkpoint, when there is one) or the path of a last.pt, which must exist."""
+    if value is None or value == "auto":
+        return value
+    if not isinstance(value, (str, Path)) or isinstance(value, bool):
+        raise ValueError(f"resume must be null, auto or the path of a last.pt, got {value!r}")
+    if not Path(value).is_file():
+        raise FileNotFoundError(f"resume={value}: no such checkpoint")
+    return Path(value)

@@ -23,7 +23,7 @@ from spacetrack.data.crops import CropDataset
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
-from spacetrack.engine.checkpoint import peek_checkpoint, unfinished_checkpoint
+from spacetrack.engine.checkpoint import peek_checkpoint, resume_choice, unfinished_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_pr_curves, prediction_grid
@@ -150,7 +150,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     resume = broadcast_object(
         _resume_from(cfg, trainer, model, run_settings) if world.is_main else None, world
     )
-    out_dir = broadcast_object(Path(resume).resolve().parents[1] if resume else Path(cfg.out_dir), world)
+    out_dir = broadcast_object(Path(resume).resolve().parents[1] if resume else Path(cfg.output_dir), world)
     if resume is None and weights is not None:
         print(f"fold {cfg.fold}: " + load_pretrained(model, weights, partial=cfg.weights_partial), flush=True)
     elif resume is None:
@@ -202,7 +202,7 @@ def _run_settings(cfg: DictConfig, weights: Path | None) -> dict:
 def _resume_from(cfg: DictConfig, trainer, model, run_settings: dict) -> str | Path | None:
     """The checkpoint to go on from: `resume` (a path), the newest unfinished one of the same settings
     under `resume_dirs` (`auto`), or None."""
-    resume = cfg.resume
+    resume = resume_choice(cfg.resume)
     if resume == "auto":
         settings = {**trainer.settings, **run_settings}
         resume = unfinished_checkpoint(list(cfg.resume_dirs), arch=model.arch, settings=settings)

@@ -1,9 +1,9 @@
 """One re-ID fold end to end: crops of the eight training folds, training, evaluation on fold k's unseen
 identities, weights, metrics and the distance plot written to disk and logged to MLflow.
 
-Every epoch leaves `last.pt` (the whole training state) in the fold's folder; `resume=true` goes on
-from it, in the same MLflow run, to the same weights as a training that was never stopped. Under
-`torchrun --nproc_per_node=N` the N processes train one network together (`reid.train.fit`).
+Every epoch leaves `last.pt` (the whole training state) in the fold's folder; `resume=auto` goes on
+from it (`resume=PATH` from another one), in the same MLflow run, to the same weights as a training
+that was never stopped. Under `torchrun --nproc_per_node=N` the N processes train one network together (`reid.train.fit`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from torch.utils.data import DataLoader
 
 from spacetrack.config import resolved_dict
 from spacetrack.data.layout import load_manifest, split_sequences
-from spacetrack.engine.checkpoint import differences, save_checkpoint
+from spacetrack.engine.checkpoint import differences, resume_choice, save_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_device, process_group
 from spacetrack.engine.precision import autocast_dtype
 from spacetrack.io import atomic_write_text, load_torch_file
@@ -211,10 +211,14 @@ def _loader(data: _FoldCrops, cropper: Cropper, t: DictConfig) -> DataLoader:
 
 
 def _resume_state(cfg: DictConfig, checkpoint: Path, settings: dict, fold: int) -> dict | None:
-    """With `resume`, the state of `checkpoint` when there is one (None: start afresh)."""
-    if not cfg.resume:
+    """The state to go on from, as `resume` says: null, start afresh; auto, the fold's own `checkpoint`
+    when there is one; a path, that last.pt (None: start afresh)."""
+    resume = resume_choice(cfg.resume)
+    if resume is None:
         return None
-    if not checkpoint.is_file():
+    if resume != "auto":
+        checkpoint = resume
+    elif not checkpoint.is_file():
         print(f"fold {fold}: no {checkpoint} to resume, starting afresh")
         return None
     state = load_resume_state(checkpoint, settings)
