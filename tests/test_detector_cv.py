@@ -6,10 +6,9 @@ from __future__ import annotations
 import importlib.util
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from spacetrack.config import CONF_DIR, REPO_ROOT
+from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 
 spec = importlib.util.spec_from_file_location("detector_cv", REPO_ROOT / "experiments/detector_cv/run.py")
@@ -22,9 +21,9 @@ def train_config(tmp_path):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
 
     def make(*overrides):
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-            cfg = compose("train", overrides=["fold=3", f"output_dir={tmp_path}", f"logger.tracking_uri={uri}",
-                                              *overrides])  # fmt: skip
+        cfg = compose_config(
+            "train", ["fold=3", f"output_dir={tmp_path}", f"logger.tracking_uri={uri}", *overrides]
+        )
         with open_dict(cfg):
             cfg.cv_parent_run_id = None
         return cfg

@@ -17,12 +17,11 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
 from omegaconf import DictConfig
 
 from spacetrack import mlflow_log
-from spacetrack.config import CONF_DIR, REPO_ROOT
+from spacetrack.config import CONF_DIR, REPO_ROOT, compose_config
 
 LONG_VALUE = "x" * (MAX_PARAM_VAL_LENGTH + 100)
 
@@ -56,8 +55,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def make_cfg(config_dir: Path, *overrides: str) -> DictConfig:
-    with initialize_config_dir(config_dir=str(config_dir), version_base=None):
-        return compose(config_name="probe", overrides=list(overrides))
+    return compose_config("probe", list(overrides), config_dir=config_dir)
 
 
 def runs_of(experiment: str) -> list[mlflow.entities.Run]:

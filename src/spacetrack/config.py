@@ -15,8 +15,15 @@ def resolved_dict(cfg: DictConfig) -> dict:
     return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=False)  # type: ignore[return-value]
 
 
-def compose_config(config_name: str, overrides: list[str] | None = None) -> DictConfig:
-    """The root config `config_name` from conf/ with command-line style `overrides`.
+def compose_config(
+    config_name: str,
+    overrides: list[str] | None = None,
+    *,
+    return_hydra_config: bool = False,
+    config_dir: str | Path = CONF_DIR,
+) -> DictConfig:
+    """The root config `config_name` from conf/ (or `config_dir`) with command-line style `overrides`;
+    with `return_hydra_config`, the `hydra` node (launcher, run folder) too.
 
     For notebooks, tests and one entry point calling another: inside a running `@hydra.main` app (whose
     configs are conf/ too) it composes with that app's Hydra instead of starting a second one.
@@ -24,7 +31,8 @@ def compose_config(config_name: str, overrides: list[str] | None = None) -> Dict
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    if GlobalHydra.instance().is_initialized():
-        return compose(config_name, overrides=overrides or [])
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        return compose(config_name, overrides=overrides or [])
+    kwargs = {"overrides": overrides or [], "return_hydra_config": return_hydra_config}
+    if GlobalHydra.instance().is_initialized() and Path(config_dir) == CONF_DIR:
+        return compose(config_name, **kwargs)
+    with initialize_config_dir(config_dir=str(config_dir), version_base=None):
+        return compose(config_name, **kwargs)

@@ -1,9 +1,8 @@
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from torch import nn
 
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
 
 
@@ -55,8 +54,7 @@ def test_ema_follows_the_model_at_its_decay():
 def test_cpu_profile_ema_horizon_is_short_beside_its_run():
     # With the reference 0.9999 (a 10,000-step horizon) the EMA of a few-hundred-step run stays near
     # its first weights and validates as an untrained model.
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(config_name="train", overrides=["logger=none"])
+    cfg = compose_config("train", ["logger=none"])
     train_frames = cfg.data.num_sequences * (1 - 1 / cfg.data.num_folds) * cfg.data.num_frames
     steps = cfg.train.trainer.epochs * train_frames / cfg.train.frame_stride / cfg.train.trainer.batch_size
     assert 1 / (1 - cfg.train.trainer.ema_decay) < steps / 4

@@ -2,29 +2,27 @@ import os
 
 import mlflow
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.engine import trainer as trainer_module
 from spacetrack.engine.cross_validation import PARENT_ENV, CrossValidationCallback
 from spacetrack.train import run
 
 
 def config(tiny_dataset, tmp_path, *overrides):
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(
-            config_name="train",
-            overrides=[
-                "train=smoke",
-                "logger=none",
-                f"data_root={tiny_dataset.parent}",
-                f"data.name={tiny_dataset.name}",
-                f"output_dir={tmp_path / 'run'}",
-                "train.frame_stride=4",
-                *overrides,
-            ],
-        )
+    cfg = compose_config(
+        "train",
+        [
+            "train=smoke",
+            "logger=none",
+            f"data_root={tiny_dataset.parent}",
+            f"data.name={tiny_dataset.name}",
+            f"output_dir={tmp_path / 'run'}",
+            "train.frame_stride=4",
+            *overrides,
+        ],
+    )
     with open_dict(cfg):
         cfg.cv_parent_run_id = None  # not resolvable outside a Hydra job, and not wanted here
     return cfg

@@ -7,11 +7,10 @@ import os
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from torch.utils.data import RandomSampler
 
 from detector_helpers import tiny_model
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.engine import distributed
 from spacetrack.engine.checkpoint import checkpoint_settings
 from spacetrack.engine.distributed import World, batches_per_epoch, shard_of_batches
@@ -117,12 +116,9 @@ def test_a_slurm_job_of_several_tasks_gives_each_its_rank(monkeypatch):
 
 
 def test_the_slurm_preset_starts_a_task_per_gpu():
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(
-            "train",
-            overrides=["hydra/launcher=slurm", "hydra.launcher.gpus_per_node=4"],
-            return_hydra_config=True,
-        )
+    cfg = compose_config(
+        "train", ["hydra/launcher=slurm", "hydra.launcher.gpus_per_node=4"], return_hydra_config=True
+    )
     assert cfg.hydra.launcher.tasks_per_node == 4 and cfg.hydra.launcher.nodes == 1
 
 

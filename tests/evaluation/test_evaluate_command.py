@@ -2,9 +2,8 @@ import json
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.evaluate import run
 
 
@@ -12,11 +11,7 @@ def test_scores_a_results_file_prints_a_table_and_writes_json(tmp_path, capsys):
     gt, results, out = tmp_path / "gt.txt", tmp_path / "res.txt", tmp_path / "metrics.json"
     gt.write_text("1,1,0,0,20,20,1,0,1\n1,2,100,0,20,20,1,0,1\n2,1,0,0,20,20,1,0,1\n2,2,100,0,20,20,0,0,0\n")
     results.write_text("1,5,0,0,20,20,1,-1,-1,-1\n2,5,1,0,20,20,1,-1,-1,-1\n2,6,300,0,20,20,1,-1,-1,-1\n")
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(
-            config_name="evaluate",
-            overrides=["logger=none", f"gt={gt}", f"results={results}", f"output_file={out}"],
-        )
+    cfg = compose_config("evaluate", ["logger=none", f"gt={gt}", f"results={results}", f"output_file={out}"])
     metrics = run(cfg)
     # 3 counted ground-truth boxes (one is hidden): 2 matched, 1 missed, 1 false positive
     assert (metrics["fn"], metrics["fp"], metrics["idsw"]) == (1, 1, 0)

@@ -1,8 +1,7 @@
 import pytest
-from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.models.yolo import count_parameters
 
 
@@ -11,8 +10,7 @@ from spacetrack.models.yolo import count_parameters
     [("yolov5s", None, 1), ("yolov5s_gam", "after_sppf", 1), ("yolov5s_gam_light", "after_sppf", 4)],
 )
 def test_model_configs_build_what_they_say(name, gam_position, gam_groups):
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(config_name="train", overrides=[f"model={name}", "logger=none"])
+    cfg = compose_config("train", [f"model={name}", "logger=none"])
     model = instantiate(cfg.model, num_classes=80)
     assert (model.arch["gam_position"], model.arch["gam_groups"]) == (gam_position, gam_groups)
     if name == "yolov5s":

@@ -15,11 +15,10 @@ from pathlib import Path
 import pytest
 import torch
 import torch.distributed as dist
-import torch.nn.functional as F
-from torch import nn
 from torch.utils.data import TensorDataset
 
 from ddp_helpers import count_calls, run_in_processes
+from reid_helpers import Toy, toy_points
 from spacetrack.config import compose_config
 from spacetrack.engine import distributed
 from spacetrack.engine.checkpoint import save_checkpoint
@@ -31,23 +30,12 @@ EPOCHS, KILL_AT_EPOCH = 6, 3
 RTOL, ATOL = 1e-4, 1e-6  # float32 sums of a batch in one piece against two shares and an all-reduce
 
 
-class Toy(nn.Module):
-    def __init__(self) -> None:
-        super().__init__()
-        self.linear = nn.Linear(4, 3)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return F.normalize(self.linear(x), dim=1)
-
-
 class Crops(TensorDataset):
     """60 noisy one-hot points of 3 identities; raises KeyboardInterrupt in epoch `kill_at` (the
     training sets `epoch` before each epoch)."""
 
     def __init__(self, kill_at: int | None = None) -> None:
-        generator = torch.Generator().manual_seed(1)
-        labels = torch.arange(60) % 3
-        super().__init__(F.one_hot(labels, 4).float() + 0.1 * torch.randn(60, 4, generator=generator), labels)
+        super().__init__(*toy_points(torch.Generator().manual_seed(1)))
         self.epoch, self.kill_at = 0, kill_at
 
     def __getitem__(self, index: int):

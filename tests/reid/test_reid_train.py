@@ -11,6 +11,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.data import DataLoader, TensorDataset
 
+from reid_helpers import Toy, toy_points
 from spacetrack.reid.loss import CosineSoftmax
 from spacetrack.reid.train import fit, lr_at
 
@@ -32,19 +33,9 @@ def test_cosine_softmax_logits_are_scaled_cosines() -> None:
         CosineSoftmax(feature_dim=2, num_classes=1)
 
 
-class Toy(nn.Module):
-    def __init__(self) -> None:
-        super().__init__()
-        self.linear = nn.Linear(4, 3)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return F.normalize(self.linear(x), dim=1)
-
-
 def toy_fit(seed: int) -> tuple[dict[str, float], torch.Tensor]:
     torch.manual_seed(seed)
-    labels = torch.arange(60) % 3
-    x = F.one_hot(labels, 4).float() + 0.1 * torch.randn(60, 4)
+    x, labels = toy_points()
     loader = DataLoader(
         TensorDataset(x, labels), batch_size=12, shuffle=True, generator=torch.Generator().manual_seed(0)
     )
@@ -88,8 +79,7 @@ class DropoutToy(nn.Module):
 
 def dropout_fit(epochs: int, *, resume: dict | None = None) -> tuple[list[dict], nn.Module]:
     torch.manual_seed(0)
-    labels = torch.arange(60) % 3
-    x = F.one_hot(labels, 4).float() + 0.1 * torch.randn(60, 4)
+    x, labels = toy_points()
     loader = DataLoader(
         TensorDataset(x, labels), batch_size=12, shuffle=True, generator=torch.Generator().manual_seed(0)
     )

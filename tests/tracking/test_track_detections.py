@@ -3,10 +3,9 @@ import sys
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 from hydra.errors import MissingConfigException
 
-from spacetrack.config import CONF_DIR
+from spacetrack.config import compose_config
 from spacetrack.track_detections import run
 
 TABLE_2 = {  # max_cosine_distance, min_confidence, nms_max_overlap, max_iou_distance, n_init, nn_budget, max_age
@@ -17,8 +16,7 @@ KEYS = ("max_cosine_distance", "min_confidence", "nms_max_overlap", "max_iou_dis
 
 
 def _compose(*overrides):
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        return compose(config_name="track_detections", overrides=["logger=none", *overrides])
+    return compose_config("track_detections", ["logger=none", *overrides])
 
 
 def _write_sequence(tmp_path, num_frames=30):
