@@ -13,7 +13,7 @@ from omegaconf import open_dict
 from spacetrack.config import compose_config
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.models.yolo import YOLOv5
-from spacetrack.onnx_backend import OrtSession, check_backend, onnx_session
+from spacetrack.onnx_backend import DETECTOR_BACKENDS, OrtSession, check_backend, onnx_session
 from spacetrack.pipeline import YoloDetector
 from spacetrack.pipeline.build import build_stream, cache_key, resolve_weights
 from spacetrack.reid import Cropper, Encoder, ReidNet
@@ -131,6 +131,23 @@ def test_settings_are_checked(tmp_path):
         OrtSession(path, threads=-1)
     with pytest.raises(ValueError, match="'cpu' or 'cuda'"):
         OrtSession(path, device="mps")
+    # the reid encoder has no INT8 or bfloat16 backend: only the detector's choices hold them
+    with pytest.raises(ValueError, match="backend must be one of"):
+        check_backend("onnxruntime_int8")
+    assert check_backend("onnxruntime_int8", "cpu", DETECTOR_BACKENDS) == "onnxruntime_int8"
+
+
+def test_sessions_do_not_spin_between_calls_unless_asked(tmp_path):
+    """Spinning intra-op threads would hold both cores after a call, slowing the stage that runs next."""
+    path = onnx_session(torch.nn.Conv2d(3, 2, 1), (1, 3, 4, 4), cache_dir=tmp_path).path
+
+    def spinning(session):
+        return session.session.get_session_options().get_session_config_entry(
+            "session.intra_op.allow_spinning"
+        )
+
+    assert spinning(OrtSession(path, threads=2)) == "0"
+    assert spinning(OrtSession(path, threads=2, spinning=True)) == "1"
 
 
 def test_missing_onnxruntime_names_the_install(monkeypatch, tmp_path):

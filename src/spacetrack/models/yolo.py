@@ -9,6 +9,7 @@ input-image pixels (xywh centre form), scores after the sigmoid.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 
@@ -16,7 +17,7 @@ import torch
 from torch import nn
 
 from spacetrack.models.common import C3, SPPF, Conv
-from spacetrack.models.gam import GAM
+from spacetrack.models.gam import GAM, SpatialAttention
 
 # Anchor (w, h) pairs in pixels for strides 8, 16 and 32, fitted by the reference project on COCO.
 COCO_ANCHORS = ((10, 13, 16, 30, 33, 23), (30, 61, 62, 45, 59, 119), (116, 90, 156, 198, 373, 326))
@@ -170,6 +171,44 @@ class YOLOv5(nn.Module):
     def predict(self, x: torch.Tensor) -> torch.Tensor:
         """Decoded predictions (B, N, 5 + classes), see the module docstring."""
         return self.detect.decode(self(x))
+
+
+def fused_conv(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> nn.Conv2d:
+    """One convolution computing `bn(conv(x))` with the batch norm's running statistics (eval mode):
+    weight scaled per output channel by gamma / sqrt(var + eps), bias beta - mean * that scale (plus the
+    convolution's own bias scaled alike)."""
+    fused = nn.Conv2d(
+        conv.in_channels,
+        conv.out_channels,
+        conv.kernel_size,
+        conv.stride,
+        conv.padding,
+        conv.dilation,
+        conv.groups,
+        bias=True,
+        padding_mode=conv.padding_mode,
+    ).to(conv.weight.device)
+    with torch.no_grad():
+        scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+        bias = conv.bias if conv.bias is not None else torch.zeros_like(bn.running_mean)
+        fused.weight.copy_(conv.weight * scale.view(-1, 1, 1, 1))
+        fused.bias.copy_(bn.bias + (bias - bn.running_mean) * scale)
+    return fused.requires_grad_(False)
+
+
+def fuse_for_inference(model: YOLOv5) -> YOLOv5:
+    """An eval-mode copy of `model` with every Conv-BN pair folded into one convolution (the network's
+    `Conv` blocks and GAM's spatial attention): the same outputs up to float rounding, fewer passes over
+    memory. The copy is for inference only; `model` itself, its training and its checkpoints are
+    untouched."""
+    fused = copy.deepcopy(model).eval()
+    for module in fused.modules():
+        if isinstance(module, Conv) and isinstance(module.bn, nn.BatchNorm2d):
+            module.conv, module.bn = fused_conv(module.conv, module.bn), nn.Identity()
+        elif isinstance(module, SpatialAttention):
+            module.conv1, module.bn1 = fused_conv(module.conv1, module.bn1), nn.Identity()
+            module.conv2, module.bn2 = fused_conv(module.conv2, module.bn2), nn.Identity()
+    return fused.requires_grad_(False)
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -17,7 +17,7 @@ from spacetrack.config import resolved_dict
 from spacetrack.device import resolve_device
 from spacetrack.io import file_hash
 from spacetrack.motion.dynamic import DynamicFilter
-from spacetrack.onnx_backend import check_backend
+from spacetrack.onnx_backend import DETECTOR_BACKENDS, check_backend
 from spacetrack.pipeline.cache import CacheKey, config_hash
 from spacetrack.pipeline.runner import filter_mode
 from spacetrack.pipeline.sources import FrameSource
@@ -104,7 +104,8 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
     """What made (or would make) a source's detections: networks by file hash, settings by config hash."""
     detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in SPEED_ONLY_KEYS}
     if "backend" in detector:  # the backend that runs ("auto" resolved on the device)
-        detector["backend"] = check_backend(detector["backend"], resolve_device(cfg.detector.device).type)
+        device = resolve_device(cfg.detector.device).type
+        detector["backend"] = check_backend(detector["backend"], device, DETECTOR_BACKENDS)
         if detector["backend"] == "torch":  # the default: a key without a backend is a torch one
             del detector["backend"]
     detector_id = config_hash(detector)

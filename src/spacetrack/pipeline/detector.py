@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -18,15 +19,50 @@ from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import check_image_size, frame_detections, network_input
 from spacetrack.io import file_hash
-from spacetrack.models.yolo import YOLOv5
-from spacetrack.onnx_backend import MethodModule, check_backend, onnx_session
+from spacetrack.models.yolo import YOLOv5, fuse_for_inference
+from spacetrack.onnx_backend import DETECTOR_BACKENDS, MethodModule, OrtSession, check_backend, onnx_session
 from spacetrack.pipeline.sources import FrameSource
+from spacetrack.quantize import Calibration, quantized_onnx, training_frames
+
+ONNX_BACKENDS = ("onnxruntime", "onnxruntime_int8")
+# Channels-last memory layout for the torch backend on the CPU: oneDNN's convolutions then skip the
+# layout reorders around each layer (see docs/speed.md for the measurement).
+CHANNELS_LAST_CPU = True
 
 
 def onnx_graph(model: YOLOv5, height: int, width: int | None = None) -> tuple[nn.Module, tuple[int, ...]]:
     """What the onnxruntime backend exports: the network with its box decoding (`predict`), and its input
     shape, one RGB image of height x width pixels (square when `width` is None)."""
     return MethodModule(model, "predict"), (1, 3, height, width or height)
+
+
+def cpu_has_bfloat16() -> bool:
+    """Whether this CPU computes bfloat16 natively (AVX512-BF16 or AMX, as oneDNN reports it); without it
+    bfloat16 autocast is emulated, slower than float32."""
+    check = getattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", None)
+    return bool(torch.backends.mkldnn.is_available() and check is not None and check())
+
+
+def check_bfloat16(device: torch.device) -> None:
+    """A ValueError when `device` has no native bfloat16 (backend torch_bf16 would only be slower)."""
+    if device.type == "cuda":
+        supported = torch.cuda.is_bf16_supported()
+    else:
+        supported = device.type == "cpu" and cpu_has_bfloat16()
+    if not supported:
+        needs = "AVX512-BF16 or AMX" if device.type == "cpu" else "an Ampere or newer GPU"
+        raise ValueError(
+            f"backend torch_bf16 needs native bfloat16 ({needs}); this {device.type} has none "
+            "(autocast would emulate it, slower than float32): use backend=torch or onnxruntime"
+        )
+
+
+def inference_network(model: YOLOv5, device: torch.device) -> YOLOv5:
+    """The torch backend's copy of `model`: Conv+BN fused, on `device`, channels-last on the CPU."""
+    network = fuse_for_inference(model).to(device)
+    if device.type == "cpu" and CHANNELS_LAST_CPU:
+        network = network.to(memory_format=torch.channels_last)
+    return network
 
 
 class YoloDetector:
@@ -40,12 +76,21 @@ class YoloDetector:
         `min_confidence`, so that the cache serves every tracker setting).
     iou_threshold: NMS IoU limit between boxes of one class.
     device: "auto" (CUDA when present), "cpu" or "cuda".
-    backend: "torch", or "onnxruntime": the network (with its box decoding) exported once to ONNX and run
-        by ONNX Runtime; letterbox and NMS are the same for both. "auto": onnxruntime on the CPU, torch
-        on CUDA.
+    backend: how the network runs; letterbox and NMS are the same for all.
+        "torch": a copy with Conv+BN fused, under `inference_mode`, channels-last on the CPU.
+        "torch_bf16": the same under bfloat16 autocast; only where the device computes bfloat16 natively
+            (a ValueError otherwise).
+        "onnxruntime": the network (with its box decoding) exported once to ONNX and run by ONNX Runtime.
+        "onnxruntime_int8": that graph quantised to INT8 (`spacetrack.quantize`), calibrated on frames of
+            the detector's own training sequences; cached beside the float export.
+        "auto": onnxruntime (float32) on the CPU, torch on CUDA.
     threads: ONNX Runtime intra-op threads (0: its default, one per physical core); torch's threads are
         the pipeline's `threads` key.
-    onnx_dir: folder of the cached ONNX exports (None: `outputs/onnx/` in the repository).
+    onnx_dir: folder of the cached ONNX exports and quantised graphs (None: `outputs/onnx/`).
+    calibration_data: the INT8 backend's calibration dataset folder (None: `data/<the dataset the
+        checkpoint was trained on>`); its sequences outside the checkpoint's validation fold are used.
+    calibration_frames, calibration_method: how many calibration frames, and how activation ranges are
+        set from them ("minmax", "entropy" or "percentile"; see `quantize.Calibration`).
     """
 
     def __init__(
@@ -60,43 +105,85 @@ class YoloDetector:
         backend: str = "torch",
         threads: int = 0,
         onnx_dir: str | Path | None = None,
+        calibration_data: str | Path | None = None,
+        calibration_frames: int = 64,
+        calibration_method: str = "percentile",
     ) -> None:
         check_image_size(image_size)
         self.device = resolve_device(device)
-        self.backend = check_backend(backend, self.device.type)
+        self.backend = check_backend(backend, self.device.type, DETECTOR_BACKENDS)
+        if self.backend == "torch_bf16":
+            check_bfloat16(self.device)
+        if self.backend == "onnxruntime_int8" and self.device.type != "cpu":
+            raise ValueError(f"backend onnxruntime_int8 runs on the CPU, got device={device!r}")
+        self.weights = Path(weights)
         self.model = load_detector(weights)
-        self._sessions: dict[tuple[int, int], object] = {}
+        self.calibration = Calibration(frames=calibration_frames, method=calibration_method)
+        self.calibration_data = calibration_data
+        self._sessions: dict[tuple[int, int], OrtSession] = {}
         self._onnx = {"threads": threads, "device": self.device.type, "cache_dir": onnx_dir}
-        if self.backend != "onnxruntime":
-            self.model.to(self.device)
+        self.network = None if self.backend in ONNX_BACKENDS else inference_network(self.model, self.device)
+        self._channels_last = self.network is not None and self.device.type == "cpu" and CHANNELS_LAST_CPU
         self.image_size, self.conf_threshold = image_size, conf_threshold
         self.iou_threshold, self.max_det = iou_threshold, max_det
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
             f"iou={iou_threshold} backend={self.backend}"
         )
+        if self.backend == "onnxruntime_int8":
+            self.identity += f" calibration={self.calibration}"
 
-    def session(self, height: int, width: int):
-        """The ONNX Runtime session for inputs of height x width pixels (exported on first use)."""
+    def session(self, height: int, width: int) -> OrtSession:
+        """The ONNX Runtime session for inputs of height x width pixels (exported, and for the INT8
+        backend quantised, on first use)."""
         if (height, width) not in self._sessions:
-            self._sessions[height, width] = onnx_session(
+            session = onnx_session(
                 *onnx_graph(self.model, height, width), name=f"yolo{height}x{width}", **self._onnx
             )
+            if self.backend == "onnxruntime_int8":
+                path = quantized_onnx(
+                    session.path, lambda: self.calibration_inputs(height, width), self.calibration,
+                    self._described(),
+                )  # fmt: skip
+                session = OrtSession(path, threads=self._onnx["threads"])
+            self._sessions[height, width] = session
         return self._sessions[height, width]
+
+    def _described(self) -> dict:
+        if not hasattr(self, "_calibration_frames"):
+            self._calibration_frames = training_frames(
+                self.weights, self.calibration.frames, self.calibration_data
+            )
+        return self._calibration_frames[1]
+
+    def calibration_inputs(self, height: int, width: int) -> list[np.ndarray]:
+        """The calibration frames as network inputs (1, 3, height, width) float32: each as the detector
+        would prepare it, resized when its size gives another input shape."""
+        self._described()
+        out = []
+        for frame in self._calibration_frames[0]:
+            boxed = network_input(frame, self.image_size)[0]
+            if boxed.shape[:2] != (height, width):
+                boxed = cv2.resize(boxed, (width, height), interpolation=cv2.INTER_LINEAR)
+            out.append(boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255))
+        return out
 
     def begin(self, source: FrameSource) -> None:
         """Nothing to prepare: a detector sees each frame alone."""
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def predict(self, boxed: np.ndarray) -> torch.Tensor:
         """Decoded predictions (1, N, 5 + classes) float32 of one network-input RGB uint8 image."""
-        if self.backend == "onnxruntime":
+        if self.backend in ONNX_BACKENDS:
             x = boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255)
             return torch.from_numpy(self.session(*boxed.shape[:2])(x)[0])
         x = torch.from_numpy(boxed).to(self.device).permute(2, 0, 1)[None].float().div_(255)
-        return self.model.predict(x).float()
+        if self._channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.backend == "torch_bf16"):
+            return self.network.predict(x).float()
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
         prepared = network_input(rgb, self.image_size)
         (det,) = frame_detections(
