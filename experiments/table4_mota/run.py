@@ -50,8 +50,8 @@ from spacetrack.pipeline.weights import MissingWeightsError
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 GT = ["detector=ground_truth"]
-YOLO = ["detector=yolo", "detector_run.model=none", "enhance=none"]
-GAM = ["detector=yolo", "detector_run.model=after_sppf", "enhance=dwt_hsv"]
+YOLO = ["detector=yolo", "detector_run.gam_position=none", "enhance=none"]
+GAM = ["detector=yolo", "detector_run.gam_position=after_sppf", "enhance=dwt_hsv"]
 # The paper's pipeline: the per-frame filter, no camera motion in the tracker.
 PAPER = ["tracker.camera_motion=false", "tracker.output_box=state"]
 REFERENCE_MATCHING = ["tracker.reacquire_gate=null"]  # DeepSORT's two matching stages, no re-acquisition
@@ -176,7 +176,13 @@ def _without_unused(settings: dict) -> dict:
         del settings["dynamic_track"]
     if not settings["offline"]["enabled"]:
         del settings["offline"]  # online
-    for key, before in (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None)):
+    # the run's GAM position was selected by the key `model` when the first pieces were made
+    settings["detector_run"] = {
+        "model" if k == "gam_position" else k: v for k, v in settings["detector_run"].items()
+    }
+    before_options = (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None),
+                      ("coast_in_view", False), ("occluded_area", None))  # fmt: skip
+    for key, before in before_options:
         if key in settings["tracker"] and settings["tracker"][key] == before:
             del settings["tracker"][key]
     return settings

@@ -77,7 +77,7 @@ def cache_folder(cfg: DictConfig) -> Path:
     each other's detections."""
     kind = str(cfg.detector._target_).rsplit(".", 1)[-1]
     if "weights" in cfg.detector:
-        kind += f"-{cfg.detector_run.model}"
+        kind += f"-{cfg.detector_run.gam_position}"
     kind += f"-{cfg.enhance._target_.rsplit('.', 1)[-1]}"
     if cfg.reid.weights == "none":
         kind += "-noreid"

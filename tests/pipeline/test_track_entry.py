@@ -154,7 +154,7 @@ def test_fold_without_trained_model_names_the_command(smoke_dataset, tmp_path):
     with pytest.raises(MissingWeightsError, match="make train FOLD=4") as err:
         build_module.resolve_weights(cfg)
     assert err.value.train == ("spacetrack.train", ["fold=4"])
-    gam = ["detector_run.model=after_sppf", "enhance=dwt_hsv"]
+    gam = ["detector_run.gam_position=after_sppf", "enhance=dwt_hsv"]
     cfg = track_config(
         smoke_dataset, tmp_path, "fold=4", *gam, f"logger.tracking_uri=sqlite:///{tmp_path}/m.db"
     )

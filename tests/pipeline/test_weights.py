@@ -24,7 +24,7 @@ def _plain_fold3(uri: str):
         dataset="space_default",
         artifact="weights/best.pt",
         train=("spacetrack.train", ["fold=3"]),
-        tags={"model": "none"},
+        tags={"gam_position": "none"},
         tracking_uri=uri,
     )
 
@@ -32,11 +32,11 @@ def _plain_fold3(uri: str):
 def test_the_newest_finished_run_of_the_fold_with_the_tags_wins(tmp_path, monkeypatch):
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     uri = f"sqlite:///{tmp_path}/m.db"
-    plain = {"fold": "3", "model": "none"}
+    plain = {"fold": "3", "gam_position": "none"}
     (tmp_path / "a").mkdir()
     older = _log_run(uri, plain, "space_default", tmp_path / "a")
-    _log_run(uri, {"fold": "3", "model": "after_sppf"}, "space_default", tmp_path / "a")
-    _log_run(uri, {"fold": "4", "model": "none"}, "space_default", tmp_path / "a")
+    _log_run(uri, {"fold": "3", "gam_position": "after_sppf"}, "space_default", tmp_path / "a")
+    _log_run(uri, {"fold": "4", "gam_position": "none"}, "space_default", tmp_path / "a")
     _log_run(uri, plain, "space_smoke", tmp_path / "a")
     _log_run(uri, plain, "space_default", tmp_path / "a", status="FAILED")
     mlflow.end_run()

@@ -155,7 +155,9 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
         print(f"fold {cfg.fold}: " + load_pretrained(model, weights, partial=cfg.weights_partial), flush=True)
     elif resume is None:
         print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
-    tags = {"fold": str(cfg.fold), "model": model.arch["gam_position"] or "none", "enhance": enhancer.name}
+    gam = model.arch["gam_position"] or "none"
+    tags = {"fold": str(cfg.fold), "model": "yolov5s" if gam == "none" else "yolov5s_gam", "gam_position": gam,
+            "enhance": enhancer.name}  # fmt: skip
     return _Fold(
         model, loss_fn, train_set, val_set, trainer, run_settings, resume, out_dir, class_names, tags
     )

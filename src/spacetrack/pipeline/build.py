@@ -46,12 +46,12 @@ def _needs_detector_weights(cfg: DictConfig) -> bool:
 
 
 def _model_overrides(tags: dict[str, str]) -> list[str]:
-    """spacetrack.train overrides that make a detector run with these `model` and `enhance` tags."""
+    """spacetrack.train overrides that make a detector run with these `gam_position` and `enhance` tags."""
     out = []
-    if tags["model"] == "after_sppf":
+    if tags["gam_position"] == "after_sppf":
         out.append("model=yolov5s_gam")
-    elif tags["model"] != "none":
-        out += ["model=yolov5s_gam", f"model.gam_position={tags['model']}"]
+    elif tags["gam_position"] != "none":
+        out += ["model=yolov5s_gam", f"model.gam_position={tags['gam_position']}"]
     if tags["enhance"] != "none":
         out.append(f"enhance={tags['enhance']}")
     return out
@@ -65,7 +65,10 @@ def resolve_weights(cfg: DictConfig) -> Weights:
         detector = cfg.detector.weights
         if detector is None:
             _require_fold(cfg, "detector.weights")
-            tags = {"model": str(cfg.detector_run.model), "enhance": str(instantiate(cfg.enhance).name)}
+            tags = {
+                "gam_position": str(cfg.detector_run.gam_position),
+                "enhance": str(instantiate(cfg.enhance).name),
+            }
             detector = fold_artifact(
                 experiment=cfg.detector_run.experiment,
                 fold=cfg.fold,

@@ -50,7 +50,7 @@ def fold_artifact(
 ) -> Path:
     """Local path of `artifact` of the newest FINISHED run of `experiment` for `fold` on `dataset`.
 
-    tags: further tags the run must carry (e.g. {"model": "after_sppf", "enhance": "dwt_hsv"}).
+    tags: further tags the run must carry (e.g. {"gam_position": "after_sppf", "enhance": "dwt_hsv"}).
     train: (module, overrides) of the command that makes such a run, named in the error when none is found.
     """
     uri = resolve_uri(tracking_uri)
