@@ -54,7 +54,8 @@ YOLO = ["detector=yolo", "detector_run.gam_position=none", "enhance=none"]
 GAM = ["detector=yolo", "detector_run.gam_position=after_sppf", "enhance=dwt_hsv"]
 # The paper's pipeline: the per-frame filter, no camera motion in the tracker.
 PAPER = ["tracker.camera_motion=false", "tracker.output_box=state"]
-REFERENCE_MATCHING = ["tracker.reacquire_gate=null"]  # DeepSORT's two matching stages, no re-acquisition
+# DeepSORT's two matching stages (no re-acquisition), its output rule and its Kalman update
+REFERENCE_MATCHING = ["tracker.reacquire_gate=null", "tracker.coast_in_view=false", "tracker.occluded_area=null"]
 NOFILTER = ["dynamic_filter=false"] + PAPER
 PAPER_FILTER = ["dynamic_filter=frame", "dynamic_hold.frames=0"] + PAPER  # the paper's per-frame filter
 HOLD = ["dynamic_filter=frame", "dynamic_hold.frames=30"] + PAPER

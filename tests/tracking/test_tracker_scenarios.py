@@ -140,3 +140,65 @@ def test_reacquire_gate_leaves_a_new_target_far_from_the_prediction_its_own_trac
     assert new != 1
     with pytest.raises(ValueError, match="reacquire_gate"):
         DeepSort(**ORIGINAL, reacquire_gate=0.0)
+
+
+def _run_on_frames(frames, **overrides):
+    """`run`, with a blank 640x480 frame given to each step (the tracker learns the image size)."""
+    tracker = DeepSort(**{**ORIGINAL, **overrides})
+    blank = np.zeros((480, 640), np.uint8)
+    outputs = []
+    for dets in frames:
+        tlwh = np.array([d[:4] for d in dets], dtype=float).reshape(-1, 4)
+        feature = np.array([FEATURES[d[4]] for d in dets]).reshape(-1, 4)
+        rows = tracker.step(tlwh, np.full(len(dets), 0.9), feature, image=blank)
+        outputs.append({int(r[0]): r[1:] for r in rows})
+    return outputs
+
+
+def test_coast_in_view_leaves_no_box_behind_a_target_that_left_the_image():
+    # 8 px/frame to the right, its visible box cut at the right border, gone after frame 14; on frame 14
+    # the 8-px sliver no longer matches the track, which coasts on its prediction
+    frames = [[(520 + 8 * f, 200, min(40, 640 - 520 - 8 * f), 30, 0)] if f <= 14 else [] for f in range(18)]
+    reference = _run_on_frames(frames)
+    (box,) = reference[14].values()
+    assert box[0] + box[2] > 640  # the reference writes a prediction that reaches outside the image
+    out = _run_on_frames(frames, coast_in_view=True)
+    assert out[14] == {} and out[13].keys() == {1}
+    assert [o.keys() for o in out[:14]] == [o.keys() for o in reference[:14]]
+
+
+def test_coast_in_view_still_bridges_a_miss_inside_the_image():
+    frames = [[(100 + 4 * f, 100, 20, 40, 0)] if f != 10 else [] for f in range(20)]
+    out = _run_on_frames(frames, coast_in_view=True)
+    assert 1 in out[10] and abs(out[10][1][0] - (100 + 4 * 10)) < 2
+    assert [o.keys() for o in out] == [o.keys() for o in _run_on_frames(frames)]
+
+
+def _swept_target() -> list:
+    """A 20 x 20 target moving left 1 px/frame while a 40-px occluder sweeps right over it at 6 px/frame:
+    the visible part of its box shrinks from the left (frames 15-17, its centre moving right), it is hidden
+    (18-20), then grows back from the left (21-22). Cut boxes look different to the re-ID (feature 1)."""
+    frames = []
+    for f in range(40):
+        x, edge = 300 - f, 200 + 6 * f  # the target's left side; the occluder covers [edge - 40, edge]
+        visible = [p for p in range(x, x + 20) if not edge - 40 <= p < edge]
+        if not visible:
+            frames.append([])
+            continue
+        left, right = min(visible), max(visible) + 1
+        frames.append([(left, 100, right - left, 20, 0 if right - left == 20 else 1)])
+    return frames
+
+
+def test_occluded_area_keeps_the_identity_of_a_target_an_occluder_sweeps_over():
+    frames = _swept_target()
+    assert [bool(d) for d in frames[14:24]] == [True] * 4 + [False] * 3 + [True] * 3
+    settings = dict(reacquire_gate=13.8155, nms_max_overlap=1.0)
+    reference = run(frames, **settings)
+    # the reference takes the velocity of the cut boxes (rightwards) and loses it: a new identity
+    assert set(reference[10]) == {1} and set(reference[25]) == {2}
+    out = run(frames, **settings, occluded_area=0.7)
+    assert set().union(*out) == {1} and all(set(o) == {1} for o in out[21:])
+    assert abs(out[25][1][0] - 275) < 2
+    with pytest.raises(ValueError, match="occluded_area"):
+        DeepSort(**ORIGINAL, occluded_area=1.0)

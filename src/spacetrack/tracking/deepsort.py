@@ -38,6 +38,9 @@ class DeepSort:
         on frames with one).
     reacquire_gate: beyond the reference, a last matching stage for confirmed tracks by the predicted
         box centre alone (see `Tracker`); None: none.
+    coast_in_view: beyond the reference, a confirmed track left unmatched on a frame is output on its
+        prediction only while that box lies inside the image (see `Tracker`); false: always, as the
+        reference does.
     """
 
     def __init__(
@@ -57,6 +60,8 @@ class DeepSort:
         dynamics: TrackDynamics | None = None,
         output_box: str = "state",
         reacquire_gate: float | None = None,
+        coast_in_view: bool = False,
+        occluded_area: float | None = None,
     ) -> None:
         metric = None
         if max_cosine_distance is not None:
@@ -73,6 +78,8 @@ class DeepSort:
             dynamics=dynamics,
             output_box=output_box,
             reacquire_gate=reacquire_gate,
+            coast_in_view=coast_in_view,
+            occluded_area=occluded_area,
         )
         self.camera = CameraMotion(camera_motion)
         self.min_confidence = min_confidence

@@ -46,6 +46,10 @@ class Tracker:
         alone, pairs above this gate rejected (the chi-square quantiles of 2 degrees of freedom:
         5.99 for 0.95, 13.8 for 0.999);
         None: no such stage (the reference).
+    coast_in_view: a confirmed track unmatched on this frame (output on its prediction, the reference's
+        rule) is output only while the predicted box lies wholly inside the image, so a target that has
+        just left the frame leaves no box behind; needs the frame size given to `update`. False: the
+        reference.
     """
 
     def __init__(
@@ -60,7 +64,11 @@ class Tracker:
         dynamics: TrackDynamics | None = None,
         output_box: str = "state",
         reacquire_gate: float | None = None,
+        coast_in_view: bool = False,
+        occluded_area: float | None = None,
     ) -> None:
+        if occluded_area is not None and not 0.0 < occluded_area < 1.0:
+            raise ValueError(f"tracker.occluded_area must lie in (0, 1) or be null, got {occluded_area}")
         if not 0.0 <= lambda_ <= 1.0:
             raise ValueError(f"lambda_ must lie in [0, 1], got {lambda_}")
         if output_box not in OUTPUT_BOXES:
@@ -69,6 +77,8 @@ class Tracker:
             raise ValueError(f"tracker.reacquire_gate must be > 0 or null, got {reacquire_gate}")
         self.output_box = output_box
         self.reacquire_gate = reacquire_gate
+        self.coast_in_view = bool(coast_in_view)
+        self.occluded_area = occluded_area
         self.metric = metric
         self.max_iou_distance = max_iou_distance
         self.max_age = max_age
@@ -115,7 +125,10 @@ class Tracker:
         if matches:
             t_idx, d_idx = map(list, zip(*matches, strict=True))
             tracks = [self.tracks[i] for i in t_idx]
-            means, covs = self.kf.update(*self._states(tracks), detections.subset(d_idx).to_xyah())
+            predicted = self._states(tracks)
+            means, covs = self.kf.update(*predicted, detections.subset(d_idx).to_xyah())
+            if self.occluded_area is not None:
+                self._hold_occluded(tracks, detections.tlwh[d_idx], predicted, means, covs)
             use_features = self.metric is not None
             for track, mean, cov, d in zip(tracks, means, covs, d_idx, strict=True):
                 track.hit(mean, cov, detections.feature[d] if use_features else None)
@@ -159,7 +172,29 @@ class Tracker:
             for i, t in enumerate(shown):
                 if t.time_since_update == 0:
                     boxes[i] = t.detection_tlwh
-        return list(zip([t.track_id for t in shown], boxes, strict=True))
+        listed = zip([t.track_id for t in shown], boxes, strict=True)
+        if self.coast_in_view and self._frame_size is not None:
+            coasting = {t.track_id for t in shown if t.time_since_update == 1}
+            return [(k, box) for k, box in listed if k not in coasting or _inside(box, self._frame_size)]
+        return list(listed)
+
+    def _hold_occluded(
+        self,
+        tracks: list[Track],
+        tlwh: np.ndarray,
+        predicted: tuple[np.ndarray, np.ndarray],
+        means: np.ndarray,
+        covs: np.ndarray,
+    ) -> None:
+        """Keep the predicted state of each track whose matched box is under `occluded_area` of the area
+        it had when last seen whole: a box cut short by an occluder moves with the occluder's edge, not
+        with the target, so it tells that the target is there but not where it goes."""
+        areas = tlwh[:, 2] * tlwh[:, 3]
+        for i, (track, area) in enumerate(zip(tracks, areas, strict=True)):
+            if track.whole_area is not None and area < self.occluded_area * track.whole_area:
+                means[i], covs[i] = predicted[0][i], predicted[1][i]
+            else:
+                track.whole_area = float(area)
 
     def _observe(self, track: Track, detections: Detections, d: int, offset: tuple[float, float]) -> None:
         """Note the detection `d` matched to `track`: its box, and the track's motion evidence."""
@@ -275,3 +310,9 @@ class Tracker:
             [k for k in unmatched if k not in taken],
             unmatched_detections,
         )
+
+
+def _inside(tlwh: np.ndarray, frame_size: tuple[int, int]) -> bool:
+    """Whether the box lies wholly inside a frame of `frame_size` (width, height)."""
+    x, y, w, h = tlwh
+    return x >= 0 and y >= 0 and x + w <= frame_size[0] and y + h <= frame_size[1]
