@@ -9,7 +9,7 @@ ARGS ?=
 .DEFAULT_GOAL := help
 .PHONY: help install peers demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
 .PHONY: track-detections evaluate bench-tracker bench-peers
-.PHONY: train cv bench-detector pretrain detector-cv bench-train
+.PHONY: train cv bench-detector bench-peer-detector pretrain detector-cv bench-train
 .PHONY: eval-motion bench-motion
 .PHONY: train-reid cv-reid bench-reid
 .PHONY: track track-cv sweep bench-pipeline table4 slew-data track-slew score-breakdown
@@ -130,7 +130,21 @@ cv-detector: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validatio
 bench-train: $(STAMP) ## detector training img/s: float32 against bfloat16, cached crops against per-sample decoding -> reports/train.json
 	$(PY) benchmarks/bench_train.py $(ARGS)
 
-bench-detector: $(STAMP) ## detector inference ms/image at 320 and 640 (torch and ONNX Runtime, 1 and 2 threads) and training images/s -> reports/detector.json
+# The reference YOLOv5s both detector benchmarks time against: the registry's yolov5 package (ultralytics
+# v7.0 packaged) with --no-deps (it asks for opencv-python, which clashes with the headless build), and the
+# packages its model code imports ('.[bench]'; ultralytics also --no-deps, for the same reason).
+YOLOV5 := yolov5==7.0.14
+ULTRALYTICS := ultralytics==8.4.190
+BENCH_PEER := $(VENV)/.bench-peer
+
+$(BENCH_PEER): $(STAMP)
+	$(PY) -m pip install -e '.[dev,bench]'
+	$(PY) -m pip install --no-deps $(YOLOV5) $(ULTRALYTICS)
+	@touch $(BENCH_PEER)
+
+bench-peer-detector: $(BENCH_PEER) ## install the reference YOLOv5s (yolov5 package) that bench-detector and bench-pipeline time against
+
+bench-detector: $(BENCH_PEER) ## detector ms/image against the reference YOLOv5s: torch, ONNX Runtime, INT8 at 320/640/native 640x480, 1 and 2 threads -> reports/detector.json
 	$(PY) benchmarks/bench_detector.py $(ARGS)
 
 MOTION_DATA := data/motion_eval
@@ -164,7 +178,7 @@ track-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## track all nine folds (Hydra 
 sweep: $(STAMP) $(DEFAULT_DATA)/manifest.json ## sweep the tracker gates on FOLD from the detection cache: MLflow run per point, MOTA heatmap
 	$(PY) -m spacetrack.track -m +sweep=grid fold=$(FOLD) $(ARGS)
 
-bench-pipeline: $(STAMP) ## time the whole pipeline per 640x480 frame, stage by stage -> reports/pipeline.json
+bench-pipeline: $(BENCH_PEER) ## the whole pipeline per 640x480 frame, stage by stage, against the reference detector alone -> reports/pipeline.json
 	$(PY) benchmarks/bench_pipeline.py $(ARGS)
 
 SLEW_DATA := data/slew

@@ -41,8 +41,7 @@ def weights(tmp_path):
 
 
 def int8(weights, data, onnx_dir, **kwargs):
-    # minmax: a random-init network has constant channels, which the percentile histogram cannot bin
-    settings = {"calibration_frames": 6, "calibration_method": "minmax", **kwargs}
+    settings = {"calibration_frames": 6, **kwargs}
     return YoloDetector(weights=weights, conf_threshold=0.0, device="cpu", backend="onnxruntime_int8",
                         threads=1, onnx_dir=onnx_dir, calibration_data=data, **settings)  # fmt: skip
 

@@ -65,6 +65,23 @@ def inference_network(model: YOLOv5, device: torch.device) -> YOLOv5:
     return network
 
 
+class CalibrationInputs:
+    """RGB frames as network inputs of one shape, prepared on access (a sequence for `quantized_onnx`)."""
+
+    def __init__(self, frames: list[np.ndarray], image_size: int | None, shape: tuple[int, int]) -> None:
+        self.frames, self.image_size, self.shape = frames, image_size, shape
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        boxed = network_input(self.frames[i], self.image_size)[0]
+        height, width = self.shape
+        if boxed.shape[:2] != (height, width):
+            boxed = cv2.resize(boxed, (width, height), interpolation=cv2.INTER_LINEAR)
+        return boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255)
+
+
 class YoloDetector:
     """A trained detector checkpoint on RGB frames: the frame at native size, predict, torchvision NMS.
 
@@ -107,7 +124,7 @@ class YoloDetector:
         onnx_dir: str | Path | None = None,
         calibration_data: str | Path | None = None,
         calibration_frames: int = 64,
-        calibration_method: str = "percentile",
+        calibration_method: str = "minmax",
     ) -> None:
         check_image_size(image_size)
         self.device = resolve_device(device)
@@ -142,9 +159,8 @@ class YoloDetector:
             )
             if self.backend == "onnxruntime_int8":
                 path = quantized_onnx(
-                    session.path, lambda: self.calibration_inputs(height, width), self.calibration,
-                    self._described(),
-                )  # fmt: skip
+                    session.path, self.calibration_inputs(height, width), self.calibration, self._described()
+                )
                 session = OrtSession(path, threads=self._onnx["threads"])
             self._sessions[height, width] = session
         return self._sessions[height, width]
@@ -156,17 +172,11 @@ class YoloDetector:
             )
         return self._calibration_frames[1]
 
-    def calibration_inputs(self, height: int, width: int) -> list[np.ndarray]:
-        """The calibration frames as network inputs (1, 3, height, width) float32: each as the detector
-        would prepare it, resized when its size gives another input shape."""
+    def calibration_inputs(self, height: int, width: int) -> CalibrationInputs:
+        """The calibration frames as network inputs (1, 3, height, width) float32, each prepared on access
+        as the detector would prepare it (resized when its size gives another input shape)."""
         self._described()
-        out = []
-        for frame in self._calibration_frames[0]:
-            boxed = network_input(frame, self.image_size)[0]
-            if boxed.shape[:2] != (height, width):
-                boxed = cv2.resize(boxed, (width, height), interpolation=cv2.INTER_LINEAR)
-            out.append(boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255))
-        return out
+        return CalibrationInputs(self._calibration_frames[0], self.image_size, (height, width))
 
     def begin(self, source: FrameSource) -> None:
         """Nothing to prepare: a detector sees each frame alone."""
