@@ -55,7 +55,11 @@ GAM = ["detector=yolo", "detector_run.gam_position=after_sppf", "enhance=dwt_hsv
 # The paper's pipeline: the per-frame filter, no camera motion in the tracker.
 PAPER = ["tracker.camera_motion=false", "tracker.output_box=state"]
 # DeepSORT's two matching stages (no re-acquisition), its output rule and its Kalman update
-REFERENCE_MATCHING = ["tracker.reacquire_gate=null", "tracker.coast_in_view=false", "tracker.occluded_area=null"]
+REFERENCE_MATCHING = [
+    "tracker.reacquire_gate=null",
+    "tracker.coast_in_view=false",
+    "tracker.occluded_area=null",
+]
 NOFILTER = ["dynamic_filter=false"] + PAPER
 PAPER_FILTER = ["dynamic_filter=frame", "dynamic_hold.frames=0"] + PAPER  # the paper's per-frame filter
 HOLD = ["dynamic_filter=frame", "dynamic_hold.frames=30"] + PAPER
@@ -102,19 +106,25 @@ PEERS = {"bytetrack": "ByteTrack", "ocsort": "OC-SORT", "botsort": "BoT-SORT (it
 APPEARANCE = {"botsort", "strongsort", "deepocsort"}
 
 
-def _peer_rows(prefix: str, where: str, base: list[str], pipeline: list[str], reid: list[str]) -> dict:
+def _peer_rows(
+    prefix: str, where: str, base: list[str], pipeline: list[str], reid: list[str], *, own_cache: bool
+) -> dict:
+    """The peer rows on one kind of boxes. own_cache: the peers that take no appearance run with no re-ID
+    network (a cache of their own); else they read the detections the DeepSORT rows cached, whose
+    features they ignore (a detector row then costs no second pass of the detector)."""
+    no_reid = ["reid.weights=none"] if own_cache else reid
     return {
         f"{prefix}_{peer}": (
             f"{where}, BoxMOT {name}, its defaults",
-            base + [f"tracker={peer}"] + pipeline + (reid if peer in APPEARANCE else ["reid.weights=none"]),
+            base + [f"tracker={peer}"] + pipeline + (reid if peer in APPEARANCE else no_reid),
         )
         for peer, name in PEERS.items()
     }
 
 
-ROWS |= _peer_rows("gt", "ground-truth boxes", GT, TRACK, SHIPPED_REID)
-ROWS |= _peer_rows("yolo", "plain YOLOv5s", YOLO, PAPER_FILTER, [])
-ROWS |= _peer_rows("gam", "YOLOv5s + GAM + DWT/HSV", GAM, PAPER_FILTER, [])
+ROWS |= _peer_rows("gt", "ground-truth boxes", GT, TRACK, SHIPPED_REID, own_cache=True)
+ROWS |= _peer_rows("yolo", "plain YOLOv5s", YOLO, PAPER_FILTER, [], own_cache=False)
+ROWS |= _peer_rows("gam", "YOLOv5s + GAM + DWT/HSV", GAM, PAPER_FILTER, [], own_cache=False)
 GROUPS = {
     "peers": [r for r in ROWS if r.split("_", 1)[1] in PEERS],
     "gt_peers": [f"gt_{peer}" for peer in PEERS],
