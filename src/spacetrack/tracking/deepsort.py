@@ -41,6 +41,8 @@ class DeepSort:
     coast_in_view: beyond the reference, a confirmed track left unmatched on a frame is output on its
         prediction only while that box lies inside the image (see `Tracker`); false: always, as the
         reference does.
+    occluded_area: beyond the reference, a matched box under this share of its track's whole area
+        (an occluder cuts it) leaves the track's state as predicted (see `Tracker`); None: the reference.
     """
 
     def __init__(

@@ -50,6 +50,10 @@ class Tracker:
         rule) is output only while the predicted box lies wholly inside the image, so a target that has
         just left the frame leaves no box behind; needs the frame size given to `update`. False: the
         reference.
+    occluded_area: in (0, 1); a matched box under this share of the area its track had when last seen
+        whole (its last box at or above that share) keeps the track alive but leaves its Kalman state as
+        predicted, since a box an occluder cuts short moves its centre with the occluder's edge. None:
+        every match updates the state (the reference).
     """
 
     def __init__(
