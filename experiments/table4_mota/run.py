@@ -293,7 +293,7 @@ def current_settings(common: list[str]) -> dict[str, str]:
     return dict(_current_settings(tuple(common)))
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=16)
 def _current_settings(common: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
     # one config composition per row (about 30 of them) per process and set of overrides
     return tuple((row, settings_hash(piece_overrides(row, 0, list(common)))) for row in ROWS)
@@ -378,16 +378,26 @@ def _scenario_table(summary: dict) -> list[str]:
     return lines
 
 
+def piece_common(row: str, record: dict) -> list[str]:
+    """The overrides a piece was run with beyond its row's own and its fold's: the runner's common ones."""
+    # the row's own keys, and `detector_run.model`, the name of `detector_run.gam_position` before
+    own = {o.split("=", 1)[0] for o in ROWS.get(row, ("", []))[1]} | {"detector_run.model"}
+    per_fold = {"fold", "output_dir", "video", "progress", "logger.experiment"}
+    return [o for o in record.get("overrides", []) if o.split("=", 1)[0] not in own | per_fold]
+
+
 def write_tables(num_folds: int = 9, current: dict[str, str] | None = None) -> list[Path]:
     """table4.md and table4.json from every result present; returns their paths. A cell made with other
-    settings than `current` (default: `current_settings([])`) is starred."""
+    settings than `current`, or by default than the current config gives with the common overrides
+    that piece was run with (`piece_common`), is starred."""
     results = load_results()
-    current = current_settings([]) if current is None else current
+
+    def now(row: str, record: dict) -> str | None:
+        table = current if current is not None else current_settings(piece_common(row, record))
+        return table.get(row)
+
     stale = {
-        (row, k)
-        for row, done in results.items()
-        for k, r in done.items()
-        if r.get("settings") != current.get(row)
+        (row, k) for row, done in results.items() for k, r in done.items() if r.get("settings") != now(row, r)
     }
     summary = {}
     for row, (title, _) in ROWS.items():
@@ -491,12 +501,12 @@ def main() -> None:
                 continue
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, json.dumps(record, indent=2) + "\n")
-            write_tables(current=settings)
+            write_tables()
             m = record["metrics"]
             print(f"{row} fold {fold}: MOTA {m['mota']:.4f}, HOTA {m['hota']:.4f}", flush=True)
             bar.update()
     bar.close()
-    write_tables(current=settings)
+    write_tables()
     if missing:
         print(f"{len(missing)} pieces wait for trained models:\n" + "\n".join(missing))
 
