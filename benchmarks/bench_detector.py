@@ -34,8 +34,9 @@ from spacetrack.config import REPO_ROOT
 from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.optim import build_optimizer
+from spacetrack.engine.precision import native_bfloat16
 from spacetrack.models.yolo import YOLOv5, fuse_for_inference
-from spacetrack.pipeline.detector import YoloDetector, cpu_has_bfloat16
+from spacetrack.pipeline.detector import YoloDetector
 
 SHIPPED = REPO_ROOT / "weights" / "detector_yolov5s_fold3.pt"
 GAM_MODELS = {
@@ -139,7 +140,7 @@ class Ours:
         }  # fmt: skip
         if cpu:
             out[f"ours torch NCHW {tag}"] = torch_call(self.nchw, shape, self.device, threads=threads)
-            if cpu_has_bfloat16():
+            if native_bfloat16():
                 out[f"ours torch_bf16 {tag}"] = torch_call(
                     self.torch.network, shape, self.device, threads=threads, channels_last=True, amp=True
                 )
@@ -281,7 +282,7 @@ def main() -> None:
         f"640x480 against the peer at 640x640). Matrix-product peak {peak_text}.\n"
         f"1-minute load average {load_before[0]:.1f} before, {load_after[0]:.1f} after the run, on a "
         f"machine shared with other jobs: compare ratios within the run, not with other runs.\n"
-        + (f"bfloat16: {'native' if cpu_has_bfloat16() else 'not native on this CPU (no AVX512-BF16/AMX): left out'}.\n" if cpu else "")
+        + (f"bfloat16: {'native' if native_bfloat16() else 'not native on this CPU (no AVX512-BF16/AMX): left out'}.\n" if cpu else "")
         + (f"Training (YOLOv5s, random init, torch, {thread_counts[0]} thread(s)): {train_rate:.2f} img/s, "
            f"batch {args.train_batch} at 320 px, forward + loss + backward + SGD step.\n" if train_rate else "")
         + "\n## Targets\n\n" + markdown_table(["target", "measured", "bound", "verdict"], target_rows)
@@ -297,7 +298,7 @@ def main() -> None:
             "repeats": repeats,
             "load_average_1_5_15min": {"before": list(load_before), "after": list(load_after)},
             "peak_gflops": {str(t): peaks[t] / 1e9 for t in thread_counts},
-            "bfloat16_native": cpu_has_bfloat16() if cpu else None,
+            "bfloat16_native": native_bfloat16() if cpu else None,
             "train_images_per_s_320": train_rate,
             "targets": targets,
             "results": records,

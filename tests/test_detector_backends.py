@@ -12,10 +12,10 @@ import torch
 
 from spacetrack.config import compose_config
 from spacetrack.engine.checkpoint import save_checkpoint
+from spacetrack.engine.precision import native_bfloat16
 from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import YoloDetector
 from spacetrack.pipeline.build import cache_key, resolve_weights
-from spacetrack.pipeline.detector import cpu_has_bfloat16
 from spacetrack.quantize import METADATA_KEY, Calibration, stored_description
 from spacetrack.reid import ReidNet
 from spacetrack.reid.weights import save_weights
@@ -68,7 +68,7 @@ def test_torch_backend_is_the_fused_network_and_predicts_as_the_checkpoint(weigh
     torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-3)
 
 
-@pytest.mark.skipif(not cpu_has_bfloat16(), reason="this CPU has no native bfloat16 (AVX512-BF16 or AMX)")
+@pytest.mark.skipif(not native_bfloat16(), reason="this CPU has no native bfloat16 (AVX512-BF16 or AMX)")
 def test_bfloat16_detections_match_float32(tmp_path):
     from spacetrack.config import REPO_ROOT
     from spacetrack.data.layout import read_rgb
@@ -87,7 +87,7 @@ def test_bfloat16_detections_match_float32(tmp_path):
     np.testing.assert_allclose(order(bf16)[:, 4], order(fp32)[:, 4], atol=0.01)
 
 
-@pytest.mark.skipif(cpu_has_bfloat16(), reason="this CPU has native bfloat16")
+@pytest.mark.skipif(native_bfloat16(), reason="this CPU has native bfloat16")
 def test_bfloat16_is_refused_where_the_cpu_would_only_emulate_it(weights):
     with pytest.raises(ValueError, match="torch_bf16 needs native bfloat16"):
         YoloDetector(weights=weights, device="cpu", backend="torch_bf16")

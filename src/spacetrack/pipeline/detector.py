@@ -18,6 +18,7 @@ from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, read_mot
 from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import check_image_size, frame_detections, network_input
+from spacetrack.engine.precision import native_bfloat16
 from spacetrack.io import file_hash
 from spacetrack.models.yolo import YOLOv5, fuse_for_inference
 from spacetrack.onnx_backend import DETECTOR_BACKENDS, MethodModule, OrtSession, check_backend, onnx_session
@@ -36,19 +37,12 @@ def onnx_graph(model: YOLOv5, height: int, width: int | None = None) -> tuple[nn
     return MethodModule(model, "predict"), (1, 3, height, width or height)
 
 
-def cpu_has_bfloat16() -> bool:
-    """Whether this CPU computes bfloat16 natively (AVX512-BF16 or AMX, as oneDNN reports it); without it
-    bfloat16 autocast is emulated, slower than float32."""
-    check = getattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", None)
-    return bool(torch.backends.mkldnn.is_available() and check is not None and check())
-
-
 def check_bfloat16(device: torch.device) -> None:
     """A ValueError when `device` has no native bfloat16 (backend torch_bf16 would only be slower)."""
     if device.type == "cuda":
         supported = torch.cuda.is_bf16_supported()
     else:
-        supported = device.type == "cpu" and cpu_has_bfloat16()
+        supported = device.type == "cpu" and native_bfloat16()
     if not supported:
         needs = "AVX512-BF16 or AMX" if device.type == "cpu" else "an Ampere or newer GPU"
         raise ValueError(
