@@ -157,7 +157,7 @@ def main() -> None:
             dynamic_filter=build_dynamic_filter(cfg),
             overlap_motion=overlap,
             overlap_reid=overlap_reid,
-            reid_min_score=cfg.reid.min_score,
+            reid_min_score=cfg.reid_min_score,
         )
 
     cpu = device.type == "cpu"

@@ -179,7 +179,7 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
     assert key(config(*torch_only, "motion.parallel=true", "overlap_reid=false")) == plain
     assert key(config(*torch_only, "motion.min_support=4")).motion != plain.motion
     # features of low-scoring boxes are left out: another threshold is another cache
-    assert key(config(*torch_only, "reid.min_score=0")).reid == plain.reid.split(" ")[0]
+    assert key(config(*torch_only, "reid_min_score=0")).reid == plain.reid.split(" ")[0]
     without_backend = config(*torch_only)
     with open_dict(without_backend):
         del without_backend.detector.backend  # a config from before the key: its caches stay valid

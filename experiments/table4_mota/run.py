@@ -131,8 +131,9 @@ GROUPS = {
 }
 SHOWN = ("mota", "hota", "deta", "assa", "idf1", "motp", "idsw", "fp", "fn")
 # The parts of conf/track.yaml that change a piece's numbers, and keys within them that change only speed.
-RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "tracker", "motion", "dynamic", "dynamic_hold",
-               "dynamic_filter", "dynamic_track", "offline", "iou_threshold", "min_visibility", "max_frames")  # fmt: skip
+RESULT_KEYS = ("data", "enhance", "detector", "detector_run", "reid", "reid_run", "reid_min_score", "tracker", "motion",
+               "dynamic", "dynamic_hold", "dynamic_filter", "dynamic_track", "offline", "iou_threshold",
+               "min_visibility", "max_frames")  # fmt: skip
 SPEED_ONLY = frozenset({"device", "threads", "onnx_dir", "parallel", "batch_size"})
 
 
@@ -187,6 +188,12 @@ def _without_unused(settings: dict) -> dict:
         del settings["dynamic_track"]
     if not settings["offline"]["enabled"]:
         del settings["offline"]  # online
+    # the re-ID settings were one block when the first pieces were made
+    settings["reid"] = {k: v for k, v in settings["reid"].items() if k != "_target_"}
+    settings["reid"] |= {
+        "experiment": settings.pop("reid_run")["experiment"],
+        "min_score": settings.pop("reid_min_score"),
+    }
     # the run's GAM position was selected by the key `model` when the first pieces were made
     settings["detector_run"] = {
         "model" if k == "gam_position" else k: v for k, v in settings["detector_run"].items()

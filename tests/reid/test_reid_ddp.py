@@ -59,7 +59,7 @@ def toy_fit(*, kill_at: int | None = None, resume: dict | None = None, save_to: 
 
 def fold_overrides(dataset: Path, out: Path) -> list[str]:
     return ["train_reid=smoke", f"dataset={dataset}", f"output_dir={out}", "train_reid.device=cpu",
-            "train_reid.frame_stride=2", "train_reid.batch_size=4", "model.net.input_height=32",
+            "train_reid.crops.frame_stride=2", "train_reid.batch_size=4", "model.net.input_height=32",
             "model.net.input_width=16", "logger=none", "fold=1"]  # fmt: skip
 
 

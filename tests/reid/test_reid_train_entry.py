@@ -20,7 +20,7 @@ def overrides(dataset, out, *extra) -> list[str]:
         "train_reid=smoke",
         f"dataset={dataset}",
         f"output_dir={out}",
-        "train_reid.frame_stride=2",
+        "train_reid.crops.frame_stride=2",
         "train_reid.device=cpu",
         # plumbing, not Table 1: a 32x16 input keeps the network 16x cheaper
         "model.net.input_height=32",
@@ -77,7 +77,7 @@ def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
 ) -> None:
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     base = overrides(
-        tiny_dataset, tmp_path / "out", "fold=1", "train_reid.epochs=3", f"logger.tracking_uri={uri}"
+        tiny_dataset, tmp_path / "out", "fold=1", "train_reid.fit.epochs=3", f"logger.tracking_uri={uri}"
     )
     unbroken = run(compose_config("train_reid", [*base, "output_dir=" + str(tmp_path / "unbroken")]))
 
@@ -98,7 +98,7 @@ def test_a_stopped_training_resumes_to_the_same_weights_in_the_same_run(
     fold = tmp_path / "out" / "fold1"
     assert (fold / "last.pt").is_file() and not (fold / "reid.pt").exists()
     with pytest.raises(ValueError, match=r"cannot resume .*last\.pt with other settings: .*lr"):
-        run(compose_config("train_reid", [*base, "resume=auto", "train_reid.lr=0.01"]))
+        run(compose_config("train_reid", [*base, "resume=auto", "train_reid.fit.lr=0.01"]))
 
     resumed = run(compose_config("train_reid", [*base, "resume=auto"]))
     assert resumed["rank1"] == unbroken["rank1"] and resumed["train_loss"] == unbroken["train_loss"]
@@ -139,4 +139,26 @@ def test_resume_takes_null_auto_or_a_path_like_the_detector(tiny_dataset, tmp_pa
     (tmp_path / "a" / "fold1" / "last.pt").rename(moved)
     (tmp_path / "a" / "fold1" / "reid.pt").unlink()
     with pytest.raises(ValueError, match=r"cannot resume .*kept/last\.pt with other settings: .*lr"):
-        run(compose_config("train_reid", [*base, f"resume={moved}", "train_reid.lr=0.01"]))
+        run(compose_config("train_reid", [*base, f"resume={moved}", "train_reid.fit.lr=0.01"]))
+
+
+def test_a_checkpoint_with_the_former_flat_settings_resumes_under_the_blocks(tiny_dataset, tmp_path) -> None:
+    """Checkpoints written when `train_reid` was one flat block (no sync_bn yet) keep resuming."""
+    cfg = compose_config("train_reid", overrides(tiny_dataset, tmp_path / "a", "logger=none", "fold=1"))
+    settings = training.training_settings(cfg, 1)
+    nested = settings["train_reid"]
+    flat = {k: v for k, v in nested.items() if not isinstance(v, dict) or k == "augment"}
+    for old, (block, key) in training.FLAT_KEYS.items():
+        flat[old] = nested[block][key]
+    del flat["sync_bn"]  # older than the key: trained without it
+    path = tmp_path / "last.pt"
+
+    def write(train_reid: dict) -> None:
+        state = {"format": training.CHECKPOINT_FORMAT, "settings": {**settings, "train_reid": train_reid}}
+        torch.save(state | {"epoch": 0}, path)
+
+    write(flat)
+    assert training.load_resume_state(path, settings)["epoch"] == 0
+    write({**flat, "gallery_window": 7})
+    with pytest.raises(ValueError, match=r"with other settings: .*window"):
+        training.load_resume_state(path, settings)

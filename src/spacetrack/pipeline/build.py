@@ -82,7 +82,7 @@ def resolve_weights(cfg: DictConfig) -> Weights:
     if reid is None:
         _require_fold(cfg, "reid.weights")
         reid = fold_artifact(
-            experiment=cfg.reid.experiment,
+            experiment=cfg.reid_run.experiment,
             fold=cfg.fold,
             dataset=dataset,
             artifact="weights/reid.pt",
@@ -118,8 +118,8 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
     if weights.reid is not None:
         backend = check_backend(cfg.reid.backend, resolve_device(cfg.reid.device).type)
         reid = file_hash(weights.reid) + ("" if backend == "torch" else f" {backend}")
-        if cfg.reid.min_score > 0:
-            reid += f" min_score={cfg.reid.min_score}"
+        if cfg.reid_min_score > 0:
+            reid += f" min_score={cfg.reid_min_score}"
     # The fusion's `parallel` only changes how fast the same masks come; the dynamic thresholds apply to
     # the cached blobs.
     motion_settings = {k: v for k, v in resolved_dict(cfg.motion).items() if k != "parallel"}
@@ -141,21 +141,12 @@ def build_dynamic_filter(cfg: DictConfig) -> DynamicFilter:
 
 def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = None) -> DetectionStream:
     """The per-frame stages: loads the networks."""
-    from spacetrack.reid import Encoder
-
     extra = {"weights": str(weights.detector)} if weights.detector is not None else {}
     if cfg.detector.get("root", "") is None:  # the ground-truth detector reads the tracked dataset
         extra["root"] = str(Path(str(cfg.source)).parent) if cfg.source is not None else cfg.dataset
     encoder = None
     if weights.reid is not None:
-        encoder = Encoder.from_weights(
-            weights.reid,
-            device=resolve_device(cfg.reid.device),
-            batch_size=cfg.reid.batch_size,
-            backend=cfg.reid.backend,
-            threads=cfg.reid.threads,
-            onnx_dir=cfg.reid.onnx_dir,
-        )
+        encoder = instantiate(cfg.reid, weights=str(weights.reid))
     return DetectionStream(
         enhancer=instantiate(cfg.enhance),
         detector=instantiate(cfg.detector, **extra),
@@ -165,7 +156,7 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
         timer=timer,
         overlap_motion=cfg.overlap_motion,
         overlap_reid=cfg.overlap_reid,
-        reid_min_score=cfg.reid.min_score,
+        reid_min_score=cfg.reid_min_score,
     )
 
 

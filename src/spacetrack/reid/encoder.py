@@ -76,11 +76,12 @@ class Encoder:
         return self.net.feature_dim
 
     @classmethod
-    def from_weights(cls, path: str | Path, **kwargs) -> Encoder:
-        """An encoder from a weights file written by training (`spacetrack.reid.weights.save_weights`)."""
+    def from_weights(cls, weights: str | Path, **kwargs) -> Encoder:
+        """An encoder from a weights file written by training (`spacetrack.reid.weights.save_weights`);
+        `conf/reid/table1.yaml` holds the keyword arguments of the pipeline's."""
         from spacetrack.reid.weights import load_weights
 
-        net, cropper = load_weights(path)
+        net, cropper = load_weights(weights)
         return cls(net, cropper, **kwargs)
 
     @classmethod

@@ -41,6 +41,16 @@ RESUME_NEUTRAL = ("threads", "workers")
 CHECKPOINT_FORMAT = "spacetrack-reid-train-1"
 # train_reid keys newer than some checkpoints, with the value those checkpoints were trained with.
 LATER_KEYS = {"sync_bn": False}
+# Where the keys of checkpoints written when train_reid was one flat block went.
+FLAT_KEYS = {
+    **{k: ("crops", k) for k in ("min_visibility", "min_box_size", "include_static", "frame_stride")},
+    **{k: ("fit", k) for k in ("epochs", "lr", "weight_decay", "warmup_epochs", "sync_bn")},
+    "eval_frame_stride": ("evaluation", "frame_stride"),
+    "eval_batch_size": ("evaluation", "batch_size"),
+    "exclude_frames": ("evaluation", "exclude_frames"),
+    "gallery_window": ("evaluation", "window"),
+    "thresholds": ("evaluation", "thresholds"),
+}
 
 
 def training_settings(cfg: DictConfig, fold: int) -> dict:
@@ -55,11 +65,22 @@ def load_resume_state(path: Path, settings: dict) -> dict:
     state = load_torch_file(path, "re-ID training checkpoint")
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path} is not a re-ID training checkpoint (expected format {CHECKPOINT_FORMAT!r})")
-    found = {**state["settings"], "train_reid": {**LATER_KEYS, **state["settings"]["train_reid"]}}
+    found = {**state["settings"], "train_reid": _nested(state["settings"]["train_reid"])}
     changed = differences(found, settings)
     if changed:
         raise ValueError(f"cannot resume {path} with other settings: {changed}")
     return state
+
+
+def _nested(train: dict) -> dict:
+    """Settings of a checkpoint in the blocks of `conf/train_reid/default.yaml` (older ones are flat)."""
+    if "fit" in train:
+        return train
+    nested: dict = {}
+    for key, value in {**LATER_KEYS, **train}.items():
+        block, name = FLAT_KEYS.get(key, (None, key))
+        (nested.setdefault(block, {}) if block else nested)[name] = value
+    return nested
 
 
 def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) -> dict[str, float]:
@@ -98,14 +119,10 @@ def train_fold(cfg: DictConfig, fold: int, *, parent_run_id: str | None = None) 
                 net,
                 head,
                 loader,
-                epochs=t.epochs,
-                lr=t.lr,
-                weight_decay=t.weight_decay,
-                warmup_epochs=t.warmup_epochs,
+                **t.fit,
                 device=device,
                 autocast=autocast_dtype(device, t.amp),
-                sync_bn=t.sync_bn,
-                on_epoch=partial(_log_epoch, fold, t.epochs),
+                on_epoch=partial(_log_epoch, fold, t.fit.epochs),
                 save_state=save_state,
                 resume_state=resume_state,
             )
@@ -144,10 +161,10 @@ def _finish(
     net, cropper, device = trained
     weights = out / "reid.pt"
     save_weights(weights, net.cpu(), net_kwargs=_kwargs(cfg.model.net), crop_kwargs=_kwargs(cfg.model.crop))
-    encoder = Encoder(net, cropper, device=device, batch_size=cfg.train_reid.eval_batch_size)
+    encoder = Encoder(net, cropper, device=device, batch_size=cfg.train_reid.evaluation.batch_size)
     metrics = _evaluate(cfg, fold, encoder, data, out)
     metrics |= {**data.sizes, **train_stats}
-    log_metrics_step(metrics, step=cfg.train_reid.epochs)
+    log_metrics_step(metrics, step=cfg.train_reid.fit.epochs)
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     for path in (out / "distances.png", out / "metrics.json", out / "distances.npz"):
         log_artifact_file(path)
@@ -174,14 +191,10 @@ class _FoldCrops:
 def _crops(cfg: DictConfig, fold: int, cropper: Cropper) -> _FoldCrops:
     t, root = cfg.train_reid, Path(cfg.dataset)
     train_seqs, val_seqs = split_sequences(load_manifest(root), fold)
-    select = dict(min_visibility=t.min_visibility, min_box_size=t.min_box_size)
-    train_table = collect_crops(
-        root, train_seqs, include_static=t.include_static, frame_stride=t.frame_stride, **select
-    )
+    train_table = collect_crops(root, train_seqs, **t.crops)
     # Evaluation asks about what the tracker tracks: moving targets only.
-    val_table = collect_crops(
-        root, val_seqs, include_static=False, frame_stride=t.eval_frame_stride, **select
-    )
+    held_out = {**t.crops, "include_static": False, "frame_stride": t.evaluation.frame_stride}
+    val_table = collect_crops(root, val_seqs, **held_out)
     started = time.perf_counter()
     train_crops = cut_crops(root, train_table, cropper, scale=t.context, image_dir=cfg.image_dir)
     val_crops = cut_crops(root, val_table, cropper, image_dir=cfg.image_dir)
@@ -222,13 +235,13 @@ def _resume_state(cfg: DictConfig, checkpoint: Path, settings: dict, fold: int) 
         print(f"fold {fold}: no {checkpoint} to resume, starting afresh")
         return None
     state = load_resume_state(checkpoint, settings)
-    print(f"fold {fold}: resuming {checkpoint} after epoch {state['epoch'] + 1}/{cfg.train_reid.epochs}")
+    print(f"fold {fold}: resuming {checkpoint} after epoch {state['epoch'] + 1}/{cfg.train_reid.fit.epochs}")
     return state
 
 
 def _evaluate(cfg: DictConfig, fold: int, encoder: Encoder, data: _FoldCrops, out: Path) -> dict[str, float]:
     """Held-out metrics of the encoder on `fold`'s crops; the distance plot and arrays go to `out`."""
-    t = cfg.train_reid
+    t = cfg.train_reid.evaluation
     crops = torch.from_numpy(data.val_crops).permute(0, 3, 1, 2).float().div(255.0)
     metrics, arrays = evaluate_features(
         encoder.encode_crops(crops),
@@ -236,7 +249,7 @@ def _evaluate(cfg: DictConfig, fold: int, encoder: Encoder, data: _FoldCrops, ou
         data.val_table.sequence,
         data.val_table.frame,
         exclude_frames=t.exclude_frames,
-        window=t.gallery_window,
+        window=t.window,
         thresholds=list(t.thresholds),
     )
     title = f"{Path(cfg.dataset).name}: held-out fold {fold}"
