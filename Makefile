@@ -9,7 +9,7 @@ ARGS ?=
 .DEFAULT_GOAL := help
 .PHONY: help install peers demo test data ui lint format bench bench-enhance clean-outputs cv cv-detector
 .PHONY: track-detections evaluate bench-tracker bench-peers
-.PHONY: train cv bench-detector bench-peer-detector pretrain detector-cv bench-train
+.PHONY: train cv bench-detector bench-runtimes bench-peer-detector pretrain detector-cv bench-train
 .PHONY: eval-motion bench-motion
 .PHONY: train-reid cv-reid bench-reid
 .PHONY: track track-cv sweep bench-pipeline table4 slew-data track-slew score-breakdown
@@ -147,6 +147,9 @@ bench-peer-detector: $(BENCH_PEER) ## install the reference YOLOv5s (yolov5 pack
 bench-detector: $(BENCH_PEER) ## detector ms/image against the reference YOLOv5s: torch, ONNX Runtime, INT8 at 320/640/native 640x480, 1 and 2 threads -> reports/detector.json
 	$(PY) benchmarks/bench_detector.py $(ARGS)
 
+bench-runtimes: $(BENCH_PEER) $(DEFAULT_DATA)/manifest.json ## the detector's ONNX graphs at 640x480 on ONNX Runtime against OpenVINO, float32 and INT8 -> reports/runtimes.json
+	$(PY) benchmarks/bench_runtimes.py $(ARGS)
+
 MOTION_DATA := data/motion_eval
 MOTION_SCENARIOS := [nominal,dim,strong_light,occlusion,multi_target,static_distractors,slew]
 
@@ -200,7 +203,7 @@ score-breakdown: $(STAMP) ## FN/FP by cause per scenario of a Table 4 row's trac
 table4: $(STAMP) $(DEFAULT_DATA)/manifest.json ## Table 4 (MOTA, HOTA per fold and row), resumable -> experiments/table4_mota (ROWS=peers: BoxMOT's, after make peers)
 	$(PY) experiments/table4_mota/run.py $(if $(ROWS),--rows $(ROWS)) $(ARGS)
 
-bench: bench-enhance bench-tracker bench-train bench-detector bench-motion bench-reid bench-pipeline ## run every benchmark
+bench: bench-enhance bench-tracker bench-train bench-detector bench-runtimes bench-motion bench-reid bench-pipeline ## run every benchmark
 
 clean-outputs: ## remove Hydra run folders (outputs/, multirun/)
 	rm -rf outputs multirun
