@@ -79,6 +79,14 @@ def test_settings_hash_ignores_fold_output_and_speed_but_not_what_changes_number
     assert table4.settings_hash(table4.piece_overrides("gt_deepsort_paper", 0, [])) != base
 
 
+def test_re_id_weights_count_only_for_a_tracker_that_matches_on_appearance():
+    sort = table4.piece_overrides("yolo_sort", 0, [])
+    with_features = table4.piece_overrides("yolo_sort", 0, ["reid.weights=weights/reid_fold3.pt"])
+    assert table4.settings_hash(with_features) == table4.settings_hash(sort)  # SORT never reads them
+    deepsort = table4.piece_overrides("yolo_deepsort_original", 0, [])
+    assert table4.settings_hash(deepsort + ["reid.weights=weights/reid_fold3.pt"]) != table4.settings_hash(deepsort)
+
+
 def test_the_dynamic_hold_counts_only_where_it_acts():
     # The paper's rows run without the hold (frames=0): their hash is that of before the option existed,
     # and with the filter off the hold has nothing to act on.

@@ -188,6 +188,9 @@ def _without_unused(settings: dict) -> dict:
         del settings["dynamic_track"]
     if not settings["offline"]["enabled"]:
         del settings["offline"]  # online
+    # a tracker without an appearance metric (SORT) never reads the features
+    if "max_cosine_distance" in settings["tracker"] and settings["tracker"]["max_cosine_distance"] is None:
+        settings["reid"]["weights"] = "none"
     # the re-ID settings were one block when the first pieces were made
     settings["reid"] = {k: v for k, v in settings["reid"].items() if k != "_target_"}
     settings["reid"] |= {
