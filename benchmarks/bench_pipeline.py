@@ -8,7 +8,7 @@ letterboxed to 640x640, with 1 and with 2 torch threads; the ratio of a pipeline
 two, from the same rounds. Ours are the whole pipeline with enhancement off and the detector at native
 resolution (640x480), motion and re-ID overlapped with it (the defaults), for each detector backend:
 onnxruntime (float32, what `backend: auto` runs on a CPU), onnxruntime_int8 and torch; and, for
-comparison, the former default (onnxruntime at 320-px letterbox). Without the `yolov5` package the peer
+comparison, onnxruntime at a 320-px letterbox (what native resolution costs). Without the `yolov5` package the peer
 rows are left out (the reason is printed) and the ratios are to our torch pipeline instead. The networks
 are the shipped fold-3 models (`weights/`) unless told otherwise; with `--detector-weights none` the
 detector is randomly initialised and, so that the re-ID and the tracker see a realistic load, the boxes
@@ -167,7 +167,7 @@ def main() -> None:
     if cpu:
         contenders["ours, onnxruntime_int8 native"] = stream(None, "none", "onnxruntime_int8", **both)
     contenders["ours, torch native"] = stream(None, "none", "torch", **both)
-    contenders[f"ours, {ort} 320 (the former default)"] = stream(320, "none", ort, **both)
+    contenders[f"ours, {ort} 320 letterbox"] = stream(320, "none", ort, **both)
     peer, peer_text = reference_yolov5s(3)
     print(peer_text, flush=True)
     peers = {}
@@ -205,7 +205,7 @@ def main() -> None:
             samples[name].append(seconds)
             stages[name].append(by_stage)
         recorded = list(
-            contenders[f"ours, {ort} 320 (the former default)"].run(
+            contenders[f"ours, {ort} 320 letterbox"].run(
                 FrameSource(args.sequence, "cache run", 10.0, len(frames), iter(frames))
             )
         )
