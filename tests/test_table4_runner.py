@@ -84,7 +84,9 @@ def test_re_id_weights_count_only_for_a_tracker_that_matches_on_appearance():
     with_features = table4.piece_overrides("yolo_sort", 0, ["reid.weights=weights/reid_fold3.pt"])
     assert table4.settings_hash(with_features) == table4.settings_hash(sort)  # SORT never reads them
     deepsort = table4.piece_overrides("yolo_deepsort_original", 0, [])
-    assert table4.settings_hash(deepsort + ["reid.weights=weights/reid_fold3.pt"]) != table4.settings_hash(deepsort)
+    assert table4.settings_hash(deepsort + ["reid.weights=weights/reid_fold3.pt"]) != table4.settings_hash(
+        deepsort
+    )
 
 
 def test_the_dynamic_hold_counts_only_where_it_acts():
