@@ -68,9 +68,11 @@ class Detect(nn.Module):
         return out
 
     def decode(self, raw: Sequence[torch.Tensor]) -> torch.Tensor:
-        """(B, N, 5 + classes): cx, cy, w, h in pixels, then sigmoid objectness and class scores."""
+        """(B, N, 5 + classes): cx, cy, w, h in pixels, then sigmoid objectness and class scores, in float32
+        whatever precision the network ran in (a bfloat16 pixel coordinate near 500 is only good to 2 px)."""
         out = []
         for i, p in enumerate(raw):
+            p = p.float()
             b, na, ny, nx, no = p.shape
             yv, xv = torch.meshgrid(
                 torch.arange(ny, device=p.device, dtype=p.dtype),
