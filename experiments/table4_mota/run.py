@@ -362,7 +362,7 @@ def _fold_table(results: dict, stale: set, metric: str, num_folds: int, tail: li
         }  # fmt: skip
         lines.append(
             f"| `{row}`: {title} | " + " | ".join(cells)
-            + f" | {100 * np.mean(values):.1f} ± {100 * np.std(values):.1f} ({len(values)} folds) | "
+            + f" | {100 * np.mean(values):.1f} ± {100 * np.std(values):.1f} ({len(values)} fold{'s' if len(values) != 1 else ''}) | "
             + " | ".join(extra[c] for c in tail) + " |"
         )  # fmt: skip
     return lines
