@@ -72,9 +72,10 @@ def test_table_lists_each_fold_and_the_means_per_scenario():
         return {"slug": slug, "fold": fold, "overrides": [], "all": overall,
                 "dim": {"map50": dim, "map50_95": dim / 2, "recall_at_score": 0.8, "frames": 75}}  # fmt: skip
 
-    text = study.table(
-        [piece("yolov5s", 3, 0.9, 0.7), piece("yolov5s", 4, 0.8, 0.5), piece("dwt_hsv_gam", 3, 0.95, 0.9)]
-    )
-    assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | 300 |" in text
+    scored_any_class = piece("dwt_hsv_gam", 3, 0.95, 0.9)
+    scored_any_class["all"] |= {"map50_any": 0.97, "recall_at_score_any": 0.96}
+    text = study.table([piece("yolov5s", 3, 0.9, 0.7), piece("yolov5s", 4, 0.8, 0.5), scored_any_class])
+    assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | - | 300 |" in text  # scored before the any-class metrics
+    assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.970 / 0.960 | 300 |" in text
     assert "| YOLOv5s | 3,4 | 0.850 | 0.425 | 0.900 | 0.600 / 0.800 |" in text
     assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.900 / 0.800 |" in text

@@ -46,6 +46,9 @@ VARIANTS = {
     "dwt_hsv_gam": ("+DWT/HSV +GAM", ["model=yolov5s_gam", "enhance=dwt_hsv"]),
 }
 METRICS = ("map50", "map50_95", "recall_at_score")
+# The same with every class as one (a box found by a detection of any class: what the tracker follows),
+# named with this suffix; pieces scored before it was added lack them.
+ANY = "_any"
 # Parameters that do not change what training learns: a run differing only in them is reused.
 NEUTRAL = ("threads", "device", "workers")
 # Training keys added after runs were made, at the value that trains as those runs did: a run without the
@@ -68,20 +71,25 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
         name: [v for v in val_names if scenario[v] == name]
         for name in sorted({scenario[v] for v in val_names})
     }
-    out, pooled, frames = {}, [], 0
+    out, pooled, pooled_any, frames = {}, [], [], 0
     for group, names in groups.items():
         data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
                            store=store, frame_stride=frame_stride)  # fmt: skip
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
         metrics, details = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
                                     iou_threshold=0.6, max_det=300)  # fmt: skip
-        out[group] = {k: metrics[k] for k in METRICS} | {"frames": len(data)}
+        any_class = detection_metrics(*details["matches_any"])
+        out[group] = {k: metrics[k] for k in METRICS} | {k + ANY: any_class[k] for k in METRICS}
+        out[group]["frames"] = len(data)
         pooled.append(details["matches"])
+        pooled_any.append(details["matches_any"])
         frames += len(data)
     # "all": the scenarios' matches pooled, one mAP over every frame (not a mean of the scenarios')
     result = detection_metrics(*(np.concatenate(a) for a in zip(*pooled, strict=True)))
-    out = {"all": {k: float(result[k]) for k in METRICS} | {"frames": frames}} | out
-    return out
+    result_any = detection_metrics(*(np.concatenate(a) for a in zip(*pooled_any, strict=True)))
+    out["all"] = {k: float(result[k]) for k in METRICS} | {k + ANY: float(result_any[k]) for k in METRICS}
+    out["all"]["frames"] = frames
+    return {"all": out.pop("all")} | out
 
 
 def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
@@ -155,13 +163,16 @@ def cell(values: list[float]) -> str:
 def table(results: list[dict]) -> str:
     """Markdown: per variant and fold the three metrics overall, then the means per scenario."""
     lines = [
-        "| variant | fold | mAP@0.5 | mAP@0.5:0.95 | recall (score >= 0.5) | frames |",
-        "|---|---|---|---|---|---|",
+        "| variant | fold | mAP@0.5 | mAP@0.5:0.95 | recall (score >= 0.5) | any class: mAP@0.5 / recall "
+        "| frames |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in sorted(results, key=lambda r: (list(VARIANTS).index(r["slug"]), r["fold"])):
         a = r["all"]
+        agnostic = (f"{a['map50' + ANY]:.3f} / {a['recall_at_score' + ANY]:.3f}"
+                    if "map50" + ANY in a else "-")  # fmt: skip
         lines.append(f"| {VARIANTS[r['slug']][0]} | {r['fold']} | {a['map50']:.3f} | {a['map50_95']:.3f} | "
-                     f"{a['recall_at_score']:.3f} | {a['frames']} |")  # fmt: skip
+                     f"{a['recall_at_score']:.3f} | {agnostic} | {a['frames']} |")  # fmt: skip
     scenarios = sorted(
         {k for r in results for k in r if isinstance(r[k], dict) and "map50" in r[k]} - {"all"}
     )

@@ -34,3 +34,21 @@ def test_pooled_matches_give_the_metrics_of_all_frames_at_once(tiny_dataset):
     result = detection_metrics(*pooled)
     for key in KEYS:
         assert float(result[key]) == pytest.approx(whole[key], abs=1e-12), key
+
+
+def test_a_box_found_with_the_wrong_class_counts_only_in_the_class_agnostic_matches(monkeypatch):
+    """One target of class 1 at (16, 16)-(48, 40) of a 64x64 image; the only detection is that very box,
+    called class 2: a miss for the mAP, a find for `matches_any` (what the tracker follows)."""
+    import spacetrack.engine.validate as validate
+
+    found = torch.tensor([[16.0, 16.0, 48.0, 40.0, 0.9, 2.0]])
+    monkeypatch.setattr(validate, "non_max_suppression", lambda *a, **k: [found.clone()])
+    images = torch.zeros(1, 3, 64, 64, dtype=torch.uint8)
+    targets = torch.tensor([[0.0, 1.0, 0.5, 28 / 64, 0.5, 24 / 64]])  # image, class, cx, cy, w, h
+    metrics, details = evaluate(tiny_model().eval(), [(images, targets)], device=torch.device("cpu"),
+                                conf_threshold=0.001, iou_threshold=0.6, max_det=300)  # fmt: skip
+    assert not details["matches"][0].any() and metrics["map50"] == 0.0
+    tp_any, scores, pred_any, gt_any = details["matches_any"]
+    assert tp_any.all()  # every IoU threshold: the boxes are the same
+    any_class = detection_metrics(*details["matches_any"])
+    assert any_class["map50"] == pytest.approx(1.0) and any_class["recall_at_score"] == 1.0

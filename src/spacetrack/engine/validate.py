@@ -31,10 +31,11 @@ def evaluate(
     `val_cls` (per image). details: `pr_curves` and `examples` (the first batch's images with their
     detections and ground truth, `xyxy` pixels of the letterboxed input) for plots, and `matches`, the
     arrays `detection_metrics` took (true-positive flags, scores, predicted and true classes), so that
-    the metrics of several loaders can be pooled.
+    the metrics of several loaders can be pooled, and `matches_any`, the same with every class as one: a
+    box found by a detection of any class counts (the tracker follows boxes, not classes).
     """
     model.eval()
-    tps, scores, pred_classes, gt_classes = [], [], [], []
+    tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
     losses = torch.zeros(3)
     examples: dict[str, object] = {}
     num_images = 0
@@ -57,6 +58,7 @@ def evaluate(
             gt_boxes = (xywh_to_xyxy(mine[:, 2:6]) * size).numpy()
             gt_cls = mine[:, 1].numpy()
             tps.append(match_detections(det[:, :4], det[:, 4], det[:, 5], gt_boxes, gt_cls))
+            tps_any.append(match_detections(det[:, :4], det[:, 4], det[:, 5] * 0, gt_boxes, gt_cls * 0))
             scores.append(det[:, 4])
             pred_classes.append(det[:, 5])
             gt_classes.append(gt_cls)
@@ -70,4 +72,7 @@ def evaluate(
     metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall", "recall_at_score")}
     if loss_fn is not None:
         metrics.update(zip(("val_box", "val_obj", "val_cls"), (losses / num_images).tolist(), strict=True))
-    return metrics, {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches}
+    tp_any = np.concatenate(tps_any)
+    matches_any = (tp_any, matches[1], matches[2] * 0, matches[3] * 0)
+    return metrics, {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches,
+                     "matches_any": matches_any}  # fmt: skip
