@@ -49,6 +49,8 @@ METRICS = ("map50", "map50_95", "recall_at_score")
 # The same with every class as one (a box found by a detection of any class: what the tracker follows),
 # named with this suffix; pieces scored before it was added lack them.
 ANY = "_any"
+# `evaluate`'s matches -> the suffix of the metrics computed from them
+KINDS = {"matches": "", "matches_any": ANY}
 # Parameters that do not change what training learns: a run differing only in them is reused.
 NEUTRAL = ("threads", "device", "workers")
 # Training keys added after runs were made, at the value that trains as those runs did: a run without the
@@ -71,25 +73,29 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
         name: [v for v in val_names if scenario[v] == name]
         for name in sorted({scenario[v] for v in val_names})
     }
-    out, pooled, pooled_any, frames = {}, [], [], 0
+    out, pooled, frames = {}, {kind: [] for kind in KINDS}, 0
     for group, names in groups.items():
         data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
                            store=store, frame_stride=frame_stride)  # fmt: skip
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
-        metrics, details = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
-                                    iou_threshold=0.6, max_det=300)  # fmt: skip
-        any_class = detection_metrics(*details["matches_any"])
-        out[group] = {k: metrics[k] for k in METRICS} | {k + ANY: any_class[k] for k in METRICS}
-        out[group]["frames"] = len(data)
-        pooled.append(details["matches"])
-        pooled_any.append(details["matches_any"])
+        _, details = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
+                              iou_threshold=0.6, max_det=300, class_agnostic=True)  # fmt: skip
+        for kind in KINDS:
+            pooled[kind].append(details[kind])
+        out[group] = summary(details) | {"frames": len(data)}
         frames += len(data)
     # "all": the scenarios' matches pooled, one mAP over every frame (not a mean of the scenarios')
-    result = detection_metrics(*(np.concatenate(a) for a in zip(*pooled, strict=True)))
-    result_any = detection_metrics(*(np.concatenate(a) for a in zip(*pooled_any, strict=True)))
-    out["all"] = {k: float(result[k]) for k in METRICS} | {k + ANY: float(result_any[k]) for k in METRICS}
-    out["all"]["frames"] = frames
-    return {"all": out.pop("all")} | out
+    joined = {kind: [np.concatenate(a) for a in zip(*parts, strict=True)] for kind, parts in pooled.items()}
+    return {"all": summary(joined) | {"frames": frames}} | out
+
+
+def summary(matches: dict) -> dict[str, float]:
+    """METRICS of each kind of matches in `matches` (see `KINDS`), named with the kind's suffix."""
+    out = {}
+    for kind, suffix in KINDS.items():
+        result = detection_metrics(*matches[kind])
+        out |= {k + suffix: float(result[k]) for k in METRICS}
+    return out
 
 
 def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:

@@ -360,9 +360,10 @@ def _fold_table(results: dict, stale: set, metric: str, num_folds: int, tail: li
             "IDF1 mean": _pct(_mean(full, "idf1")),
             **{m.upper(): f"{sum(d['metrics'][m] for d in full.values()):.0f}" for m in ("idsw", "fp", "fn")},
         }  # fmt: skip
+        folds = f"{len(values)} fold" + ("s" if len(values) != 1 else "")
         lines.append(
             f"| `{row}`: {title} | " + " | ".join(cells)
-            + f" | {100 * np.mean(values):.1f} ± {100 * np.std(values):.1f} ({len(values)} fold{'s' if len(values) != 1 else ''}) | "
+            + f" | {100 * np.mean(values):.1f} ± {100 * np.std(values):.1f} ({folds}) | "
             + " | ".join(extra[c] for c in tail) + " |"
         )  # fmt: skip
     return lines

@@ -25,6 +25,7 @@ def test_pooled_matches_give_the_metrics_of_all_frames_at_once(tiny_dataset):
     model = tiny_model().eval()
     names = ["seq_000_nominal", "seq_001_nominal", "seq_002_nominal"]
     whole, details = run(model, tiny_dataset, names)
+    assert "matches_any" not in details  # only asked for
     parts = [run(model, tiny_dataset, [n])[1]["matches"] for n in names]
     pooled = [np.concatenate(a) for a in zip(*parts, strict=True)]
     tps, scores, _, gt_classes = details["matches"]
@@ -46,7 +47,8 @@ def test_a_box_found_with_the_wrong_class_counts_only_in_the_class_agnostic_matc
     images = torch.zeros(1, 3, 64, 64, dtype=torch.uint8)
     targets = torch.tensor([[0.0, 1.0, 0.5, 28 / 64, 0.5, 24 / 64]])  # image, class, cx, cy, w, h
     metrics, details = evaluate(tiny_model().eval(), [(images, targets)], device=torch.device("cpu"),
-                                conf_threshold=0.001, iou_threshold=0.6, max_det=300)  # fmt: skip
+                                conf_threshold=0.001, iou_threshold=0.6, max_det=300,
+                                class_agnostic=True)  # fmt: skip
     assert not details["matches"][0].any() and metrics["map50"] == 0.0
     tp_any, scores, pred_any, gt_any = details["matches_any"]
     assert tp_any.all()  # every IoU threshold: the boxes are the same

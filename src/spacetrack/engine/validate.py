@@ -23,6 +23,7 @@ def evaluate(
     iou_threshold: float,
     max_det: int,
     loss_fn: Callable | None = None,
+    class_agnostic: bool = False,
 ) -> tuple[dict[str, float], dict[str, object]]:
     """(metrics, details) of `model` on `loader` (see `yolo_dataset.collate` for the batch format).
 
@@ -31,8 +32,9 @@ def evaluate(
     `val_cls` (per image). details: `pr_curves` and `examples` (the first batch's images with their
     detections and ground truth, `xyxy` pixels of the letterboxed input) for plots, and `matches`, the
     arrays `detection_metrics` took (true-positive flags, scores, predicted and true classes), so that
-    the metrics of several loaders can be pooled, and `matches_any`, the same with every class as one: a
-    box found by a detection of any class counts (the tracker follows boxes, not classes).
+    the metrics of several loaders can be pooled; with `class_agnostic`, also `matches_any`, the same with
+    every class as one: a box found by a detection of any class counts (the tracker follows boxes, not
+    classes).
     """
     model.eval()
     tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
@@ -45,7 +47,7 @@ def evaluate(
         if loss_fn is not None:
             losses += loss_fn([p.float() for p in raw], targets.to(device))[1].cpu() * len(x)
         detections = non_max_suppression(
-            model.detect.decode(raw).float(),
+            model.detect.decode(raw),
             conf_threshold=conf_threshold,
             iou_threshold=iou_threshold,
             max_det=max_det,
@@ -58,7 +60,9 @@ def evaluate(
             gt_boxes = (xywh_to_xyxy(mine[:, 2:6]) * size).numpy()
             gt_cls = mine[:, 1].numpy()
             tps.append(match_detections(det[:, :4], det[:, 4], det[:, 5], gt_boxes, gt_cls))
-            tps_any.append(match_detections(det[:, :4], det[:, 4], det[:, 5] * 0, gt_boxes, gt_cls * 0))
+            if class_agnostic:
+                one = np.zeros(len(det)), np.zeros(len(gt_cls))
+                tps_any.append(match_detections(det[:, :4], det[:, 4], one[0], gt_boxes, one[1]))
             scores.append(det[:, 4])
             pred_classes.append(det[:, 5])
             gt_classes.append(gt_cls)
@@ -72,7 +76,8 @@ def evaluate(
     metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall", "recall_at_score")}
     if loss_fn is not None:
         metrics.update(zip(("val_box", "val_obj", "val_cls"), (losses / num_images).tolist(), strict=True))
-    tp_any = np.concatenate(tps_any)
-    matches_any = (tp_any, matches[1], matches[2] * 0, matches[3] * 0)
-    return metrics, {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches,
-                     "matches_any": matches_any}  # fmt: skip
+    details = {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches}
+    if class_agnostic:
+        tp, found, pred, truth = matches
+        details["matches_any"] = (np.concatenate(tps_any), found, np.zeros_like(pred), np.zeros_like(truth))
+    return metrics, details

@@ -185,7 +185,7 @@ class YoloDetector:
         if self._channels_last:
             x = x.contiguous(memory_format=torch.channels_last)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.backend == "torch_bf16"):
-            return self.network.predict(x).float()
+            return self.network.predict(x)
 
     @torch.inference_mode()
     def __call__(self, rgb: np.ndarray, frame: int) -> np.ndarray:
