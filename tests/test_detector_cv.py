@@ -74,8 +74,29 @@ def test_table_lists_each_fold_and_the_means_per_scenario():
 
     scored_any_class = piece("dwt_hsv_gam", 3, 0.95, 0.9)
     scored_any_class["all"] |= {"map50_any": 0.97, "recall_at_score_any": 0.96}
-    text = study.table([piece("yolov5s", 3, 0.9, 0.7), piece("yolov5s", 4, 0.8, 0.5), scored_any_class])
-    assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | - | 300 |" in text  # scored before the any-class metrics
-    assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.970 / 0.960 | 300 |" in text
+    scored_multi = piece("yolov5s", 4, 0.8, 0.5)
+    scored_multi["all"] |= {"map50_any": 0.9, "recall_at_score_any": 0.85, "map50_multi": 0.82,
+                            "map50_95_multi": 0.41}  # fmt: skip
+    text = study.table([piece("yolov5s", 3, 0.9, 0.7), scored_multi, scored_any_class])
+    # scored before the any-class and multi-label metrics
+    assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | - | - | 300 |" in text
+    assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.970 / 0.960 | - | 300 |" in text
+    assert "| YOLOv5s | 4 | 0.800 | 0.400 | 0.900 | 0.900 / 0.850 | 0.820 / 0.410 | 300 |" in text
     assert "| YOLOv5s | 3,4 | 0.850 | 0.425 | 0.900 | 0.600 / 0.800 |" in text
     assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.900 / 0.800 |" in text
+
+
+def test_rescoring_takes_the_pieces_own_run_or_leaves_the_piece_alone(train_config, tmp_path, monkeypatch):
+    weights = tmp_path / "best.pt"
+    weights.write_bytes(b"weights")
+    overrides = [f"output_dir={tmp_path}", f"logger.tracking_uri=sqlite:///{tmp_path / 'mlflow.db'}"]
+    cfg = study.variant_config("yolov5s", 3, overrides, tmp_path)
+    run_id = finished_run(cfg, weights, 0.4)
+    scored = []
+    monkeypatch.setattr(
+        study, "score", lambda cfg, w, stride: scored.append(w.read_bytes()) or {"all": {"x": 1}}
+    )
+    old = {"slug": "yolov5s", "fold": 3, "overrides": overrides, "run_id": run_id, "all": {"x": 0}, "dim": {}}
+    assert study.rescored(old, 2, tmp_path) == {**old, "all": {"x": 1}} and scored == [b"weights"]
+    elsewhere = {**old, "run_id": "f" * 32}  # trained on another machine: its run is not in this store
+    assert study.rescored(elsewhere, 2, tmp_path) is None and len(scored) == 1

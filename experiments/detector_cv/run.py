@@ -49,8 +49,11 @@ METRICS = ("map50", "map50_95", "recall_at_score")
 # The same with every class as one (a box found by a detection of any class: what the tracker follows),
 # named with this suffix; pieces scored before it was added lack them.
 ANY = "_any"
+# The same from detections of every class an anchor scores above the threshold, not only its best one
+# (YOLOv5's way to measure mAP: a box the model is unsure how to name also counts for its second class).
+MULTI = "_multi"
 # `evaluate`'s matches -> the suffix of the metrics computed from them
-KINDS = {"matches": "", "matches_any": ANY}
+KINDS = {"matches": "", "matches_any": ANY, "matches_multi": MULTI}
 # Parameters that do not change what training learns: a run differing only in them is reused.
 NEUTRAL = ("threads", "device", "workers")
 # Training keys added after runs were made, at the value that trains as those runs did: a run without the
@@ -79,7 +82,8 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
                            store=store, frame_stride=frame_stride)  # fmt: skip
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
         _, details = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
-                              iou_threshold=0.6, max_det=300, class_agnostic=True)  # fmt: skip
+                              iou_threshold=0.6, max_det=300, class_agnostic=True,
+                              multi_label=True)  # fmt: skip
         for kind in KINDS:
             pooled[kind].append(details[kind])
         out[group] = summary(details) | {"frames": len(data)}
@@ -155,6 +159,16 @@ def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Pa
     return {"run_id": run_id, "best_epoch": best.get("epoch"), **score(cfg, weights, frame_stride)}
 
 
+def rescored(result: dict, frame_stride: int, out: Path) -> dict | None:
+    """`result` (a piece) scored again from the weights of its own MLflow run, or None where this store
+    does not hold that run (trained on another machine)."""
+    cfg = variant_config(result["slug"], result["fold"], result["overrides"], out)
+    found = matching_run(cfg)
+    if found is None or found[0] != result["run_id"]:
+        return None
+    return {**result, **score(cfg, found[2], frame_stride)}
+
+
 def write_tables(out: Path) -> None:
     """results.json and results.md from every piece in `out`/results."""
     results = [json.loads(p.read_text()) for p in sorted((out / "results").glob("*.json"))]
@@ -170,15 +184,17 @@ def table(results: list[dict]) -> str:
     """Markdown: per variant and fold the three metrics overall, then the means per scenario."""
     lines = [
         "| variant | fold | mAP@0.5 | mAP@0.5:0.95 | recall (score >= 0.5) | any class: mAP@0.5 / recall "
-        "| frames |",
-        "|---|---|---|---|---|---|---|",
+        "| multi-label: mAP@0.5 / mAP@0.5:0.95 | frames |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(results, key=lambda r: (list(VARIANTS).index(r["slug"]), r["fold"])):
         a = r["all"]
         agnostic = (f"{a['map50' + ANY]:.3f} / {a['recall_at_score' + ANY]:.3f}"
                     if "map50" + ANY in a else "-")  # fmt: skip
+        multi = (f"{a['map50' + MULTI]:.3f} / {a['map50_95' + MULTI]:.3f}"
+                 if "map50" + MULTI in a else "-")  # fmt: skip
         lines.append(f"| {VARIANTS[r['slug']][0]} | {r['fold']} | {a['map50']:.3f} | {a['map50_95']:.3f} | "
-                     f"{a['recall_at_score']:.3f} | {agnostic} | {a['frames']} |")  # fmt: skip
+                     f"{a['recall_at_score']:.3f} | {agnostic} | {multi} | {a['frames']} |")  # fmt: skip
     scenarios = sorted(
         {k for r in results for k in r if isinstance(r[k], dict) and "map50" in r[k]} - {"all"}
     )
@@ -220,6 +236,12 @@ def main() -> None:
     )
     parser.add_argument("--frame-stride", type=int, default=2, help="score every n-th validation frame")
     parser.add_argument(
+        "--rescore",
+        action="store_true",
+        help="score pieces already present again from their MLflow run (where this store has it): "
+        "adds metrics added since they were scored",
+    )
+    parser.add_argument(
         "overrides", nargs="*", help="Hydra overrides of the train config for every run (after --)"
     )
     args = parser.parse_args()
@@ -233,9 +255,16 @@ def main() -> None:
         for slug in slugs:
             path = args.out / "results" / f"{slug}_fold{fold}.json"
             if path.is_file():
-                continue
-            result = {"slug": slug, "variant": VARIANTS[slug][0], "fold": fold, "overrides": args.overrides,
-                      **piece(slug, fold, args.overrides, args.frame_stride, args.out)}  # fmt: skip
+                if not args.rescore:
+                    continue
+                result = rescored(json.loads(path.read_text()), args.frame_stride, args.out)
+                if result is None:
+                    print(f"{path}: its MLflow run is not in this store; left as it is")
+                    continue
+            else:
+                result = {"slug": slug, "variant": VARIANTS[slug][0], "fold": fold,
+                          "overrides": args.overrides,
+                          **piece(slug, fold, args.overrides, args.frame_stride, args.out)}  # fmt: skip
             atomic_write_text(path, json.dumps(result, indent=2) + "\n")
             write_tables(args.out)
             print(

@@ -69,3 +69,15 @@ def test_nms_keeps_the_best_of_overlapping_boxes_per_class():
     assert out[:, 5].tolist() == [0.0, 1.0]
     assert out[0, :4].tolist() == [15.0, 15.0, 25.0, 25.0]
     assert out[0, 4].item() == pytest.approx(0.81)
+
+
+def test_multi_label_nms_keeps_every_class_an_anchor_scores_above_the_threshold():
+    # One anchor, objectness 0.9, classes 0.1 / 0.8 / 0.6: scores 0.09, 0.72, 0.54
+    pred = torch.tensor([[[40, 40, 20, 10, 0.9, 0.1, 0.8, 0.6], [90, 90, 8, 8, 0.9, 0.3, 0.2, 0.1]]])
+    (best,) = non_max_suppression(pred, conf_threshold=0.3, iou_threshold=0.5)
+    assert best[:, 5].tolist() == [1.0]  # one class per anchor; the second anchor's best 0.27 is under 0.3
+    assert best[0, 4].item() == pytest.approx(0.72)
+    (every,) = non_max_suppression(pred, conf_threshold=0.3, iou_threshold=0.5, multi_label=True)
+    assert every[:, 5].tolist() == [1.0, 2.0]  # best score first; the same box under both names
+    assert every[:, 4].tolist() == pytest.approx([0.72, 0.54])
+    assert every[0, :4].tolist() == every[1, :4].tolist() == [30.0, 35.0, 50.0, 45.0]

@@ -54,3 +54,20 @@ def test_a_box_found_with_the_wrong_class_counts_only_in_the_class_agnostic_matc
     assert tp_any.all()  # every IoU threshold: the boxes are the same
     any_class = detection_metrics(*details["matches_any"])
     assert any_class["map50"] == pytest.approx(1.0) and any_class["recall_at_score"] == 1.0
+
+
+def test_a_box_whose_second_class_is_right_counts_only_in_the_multi_label_matches():
+    """One target of class 2 at (16, 16)-(48, 40) of a 64x64 image; the model finds that very box with
+    objectness 0.9 and class scores 0.1 / 0.8 / 0.6: its best class (1) is wrong, its second (2) right."""
+    model = tiny_model().eval()
+    pred = torch.tensor([[[32.0, 28.0, 32.0, 24.0, 0.9, 0.1, 0.8, 0.6]]])
+    model.detect.decode = lambda raw: pred
+    images = torch.zeros(1, 3, 64, 64, dtype=torch.uint8)
+    targets = torch.tensor([[0.0, 2.0, 0.5, 28 / 64, 0.5, 24 / 64]])  # image, class, cx, cy, w, h
+    metrics, details = evaluate(model, [(images, targets)], device=torch.device("cpu"), conf_threshold=0.001,
+                                iou_threshold=0.6, max_det=300, multi_label=True)  # fmt: skip
+    assert metrics["map50"] == 0.0 and not details["matches"][0].any()  # one name per box: the wrong one
+    tp, scores, classes, truth = details["matches_multi"]
+    assert classes.tolist() == [1.0, 2.0, 0.0] and truth.tolist() == [2.0]  # 0.72, 0.54, 0.09: all > 0.001
+    assert tp[:, 0].tolist() == [False, True, False] and scores[1] == pytest.approx(0.54)
+    assert detection_metrics(*details["matches_multi"])["map50"] == pytest.approx(1.0)

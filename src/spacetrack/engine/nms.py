@@ -9,25 +9,38 @@ from spacetrack.engine.boxes import xywh_to_xyxy
 
 
 def non_max_suppression(
-    pred: torch.Tensor, *, conf_threshold: float = 0.001, iou_threshold: float = 0.6, max_det: int = 300
+    pred: torch.Tensor,
+    *,
+    conf_threshold: float = 0.001,
+    iou_threshold: float = 0.6,
+    max_det: int = 300,
+    multi_label: bool = False,
 ) -> list[torch.Tensor]:
     """Per image an (n, 6) tensor `x1, y1, x2, y2, score, class` (xyxy pixels), best score first.
 
     `pred` is `YOLOv5.predict` output (B, N, 5 + classes). The score is objectness times the best
     class probability (objectness alone with one class, whose class output is never trained). NMS is
-    per class.
+    per class. With `multi_label`, an anchor gives a detection for every class whose objectness times
+    class probability passes `conf_threshold`, not only for its best one: a box the model is unsure how
+    to name then also counts, at its lower score, for its second class (how YOLOv5 measures mAP); the
+    tracker takes one class per box (the default).
     """
     out = []
     num_classes = pred.shape[2] - 5
     for p in pred:
-        if num_classes > 1:
-            cls_score, cls = p[:, 5:].max(dim=1)
-            score = p[:, 4] * cls_score
+        if num_classes > 1 and multi_label:
+            anchor, cls = (p[:, 4:5] * p[:, 5:] > conf_threshold).nonzero(as_tuple=True)
+            score = p[anchor, 4] * p[anchor, 5 + cls]
+            boxes = xywh_to_xyxy(p[anchor, :4])
         else:
-            score = p[:, 4]
-            cls = torch.zeros_like(score, dtype=torch.long)
-        keep = score > conf_threshold
-        boxes, score, cls = xywh_to_xyxy(p[keep, :4]), score[keep], cls[keep]
+            if num_classes > 1:
+                cls_score, cls = p[:, 5:].max(dim=1)
+                score = p[:, 4] * cls_score
+            else:
+                score = p[:, 4]
+                cls = torch.zeros_like(score, dtype=torch.long)
+            keep = score > conf_threshold
+            boxes, score, cls = xywh_to_xyxy(p[keep, :4]), score[keep], cls[keep]
         kept = batched_nms(boxes.float(), score.float(), cls, iou_threshold)[:max_det]
         out.append(torch.cat((boxes[kept], score[kept, None], cls[kept, None].to(boxes.dtype)), dim=1))
     return out

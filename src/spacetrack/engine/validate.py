@@ -24,6 +24,7 @@ def evaluate(
     max_det: int,
     loss_fn: Callable | None = None,
     class_agnostic: bool = False,
+    multi_label: bool = False,
 ) -> tuple[dict[str, float], dict[str, object]]:
     """(metrics, details) of `model` on `loader` (see `yolo_dataset.collate` for the batch format).
 
@@ -34,10 +35,13 @@ def evaluate(
     arrays `detection_metrics` took (true-positive flags, scores, predicted and true classes), so that
     the metrics of several loaders can be pooled; with `class_agnostic`, also `matches_any`, the same with
     every class as one: a box found by a detection of any class counts (the tracker follows boxes, not
-    classes).
+    classes); with `multi_label`, also `matches_multi`, the same as `matches` from detections of every
+    class an anchor scores above `conf_threshold` (see `non_max_suppression`: YOLOv5's way to measure mAP).
+    The metrics themselves always come from one detection per box, the class of its best score.
     """
     model.eval()
     tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
+    multi: list[list[np.ndarray]] = [[], [], [], []]
     losses = torch.zeros(3)
     examples: dict[str, object] = {}
     num_images = 0
@@ -46,12 +50,10 @@ def evaluate(
         raw = model(x)
         if loss_fn is not None:
             losses += loss_fn([p.float() for p in raw], targets.to(device))[1].cpu() * len(x)
-        detections = non_max_suppression(
-            model.detect.decode(raw),
-            conf_threshold=conf_threshold,
-            iou_threshold=iou_threshold,
-            max_det=max_det,
-        )
+        decoded = model.detect.decode(raw)
+        nms = {"conf_threshold": conf_threshold, "iou_threshold": iou_threshold, "max_det": max_det}
+        detections = non_max_suppression(decoded, **nms)
+        every_class = non_max_suppression(decoded, **nms, multi_label=True) if multi_label else []
         size = torch.tensor(x.shape[2:][::-1] * 2, dtype=torch.float32)
         batch_dets, batch_gts = [], []
         for i, det in enumerate(detections):
@@ -63,6 +65,11 @@ def evaluate(
             if class_agnostic:
                 one = np.zeros(len(det)), np.zeros(len(gt_cls))
                 tps_any.append(match_detections(det[:, :4], det[:, 4], one[0], gt_boxes, one[1]))
+            if multi_label:
+                m = every_class[i].cpu().numpy()
+                hit = match_detections(m[:, :4], m[:, 4], m[:, 5], gt_boxes, gt_cls)
+                for part, a in zip(multi, (hit, m[:, 4], m[:, 5], gt_cls), strict=True):
+                    part.append(a)
             scores.append(det[:, 4])
             pred_classes.append(det[:, 5])
             gt_classes.append(gt_cls)
@@ -80,4 +87,6 @@ def evaluate(
     if class_agnostic:
         tp, found, pred, truth = matches
         details["matches_any"] = (np.concatenate(tps_any), found, np.zeros_like(pred), np.zeros_like(truth))
+    if multi_label:
+        details["matches_multi"] = tuple(np.concatenate(a) for a in multi)
     return metrics, details
