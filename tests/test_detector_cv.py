@@ -77,12 +77,18 @@ def test_table_lists_each_fold_and_the_means_per_scenario():
     scored_multi = piece("yolov5s", 4, 0.8, 0.5)
     scored_multi["all"] |= {"map50_any": 0.9, "recall_at_score_any": 0.85, "map50_multi": 0.82,
                             "map50_95_multi": 0.41}  # fmt: skip
-    text = study.table([piece("yolov5s", 3, 0.9, 0.7), scored_multi, scored_any_class])
+    scored_multi["confusion"] = {"classes": ["a", "b"], "counts": [[5, 1, 2], [3, 4, 0], [1, 0, 0]]}
+    also = piece("yolov5s", 5, 0.8, 0.5) | {"confusion": {"classes": ["a", "b"], "counts": [[1] * 3] * 3}}
+    text = study.table([piece("yolov5s", 3, 0.9, 0.7), scored_multi, scored_any_class, also])
     # scored before the any-class and multi-label metrics
     assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | - | - | 300 |" in text
     assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.970 / 0.960 | - | 300 |" in text
     assert "| YOLOv5s | 4 | 0.800 | 0.400 | 0.900 | 0.900 / 0.850 | 0.820 / 0.410 | 300 |" in text
-    assert "| YOLOv5s | 3,4 | 0.850 | 0.425 | 0.900 | 0.600 / 0.800 |" in text
+    assert "| YOLOv5s | 3,4,5 | 0.833 | 0.417 | 0.900 | 0.567 / 0.800 |" in text
+    # the confusion matrices of the pieces that have one, summed
+    assert "YOLOv5s, folds 4,5: true class (rows)" in text
+    assert "| true / predicted | a | b | missed |" in text
+    assert "| a | 6 | 2 | 3 |\n| b | 4 | 5 | 1 |\n| background | 2 | 1 | 1 |" in text
     assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.900 / 0.800 |" in text
 
 

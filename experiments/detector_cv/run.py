@@ -62,7 +62,9 @@ ADDED_LATER = {"train.trainer.sync_bn": "False"}
 
 
 def score(cfg, weights: Path, frame_stride: int) -> dict:
-    """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario."""
+    """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario, and the
+    confusion matrix over all of them (`evaluate`'s: row true class, column predicted, plus background and
+    missed)."""
     root = Path(cfg.data_root) / cfg.data.name
     manifest = load_manifest(root)
     _, val_names = split_sequences(manifest, cfg.fold)
@@ -76,7 +78,7 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
         name: [v for v in val_names if scenario[v] == name]
         for name in sorted({scenario[v] for v in val_names})
     }
-    out, pooled, frames = {}, {kind: [] for kind in KINDS}, 0
+    out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, 0
     for group, names in groups.items():
         data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
                            store=store, frame_stride=frame_stride)  # fmt: skip
@@ -88,9 +90,11 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
             pooled[kind].append(details[kind])
         out[group] = summary(details) | {"frames": len(data)}
         frames += len(data)
+        confusion = confusion + details["confusion"]
     # "all": the scenarios' matches pooled, one mAP over every frame (not a mean of the scenarios')
     joined = {kind: [np.concatenate(a) for a in zip(*parts, strict=True)] for kind, parts in pooled.items()}
-    return {"all": summary(joined) | {"frames": frames}} | out
+    counts = {"classes": list(manifest["class_names"]), "counts": confusion.tolist()}
+    return {"all": summary(joined) | {"frames": frames}, "confusion": counts} | out
 
 
 def summary(matches: dict) -> dict[str, float]:
@@ -215,12 +219,33 @@ def table(results: list[dict]) -> str:
                 else f"{cell([h['map50'] for h in have])} / {cell([h['recall_at_score'] for h in have])}"
             )
         lines.append("| " + " | ".join(row) + " |")
+    lines += confusion_tables(results)
     overrides = sorted({" ".join(r["overrides"]) or "(none)" for r in results})
     return (
         f"Overrides `{'`, `'.join(overrides)}`; each fold's best epoch, native 640x480 frames.\n\n"
         + "\n".join(lines)
         + "\n"
     )
+
+
+def confusion_tables(results: list[dict]) -> list[str]:
+    """Markdown: per variant the confusion matrices of its pieces summed (pieces scored before it was
+    added have none)."""
+    lines = []
+    for slug, (name, _) in VARIANTS.items():
+        mine = [r for r in results if r["slug"] == slug and "confusion" in r]
+        if not mine:
+            continue
+        classes = mine[0]["confusion"]["classes"]
+        counts = np.sum([r["confusion"]["counts"] for r in mine], axis=0)
+        folds = ",".join(str(r["fold"]) for r in mine)
+        lines += ["", f"{name}, folds {folds}: true class (rows) against predicted (columns), detections "
+                  "scoring >= 0.25 paired with targets at IoU >= 0.45 whatever their class:", "",
+                  "| true / predicted | " + " | ".join([*classes, "missed"]) + " |",
+                  "|" + "---|" * (len(classes) + 2)]  # fmt: skip
+        for label, row in zip([*classes, "background"], counts, strict=True):
+            lines.append(f"| {label} | " + " | ".join(str(int(c)) for c in row) + " |")
+    return lines
 
 
 def main() -> None:

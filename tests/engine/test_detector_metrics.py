@@ -2,7 +2,13 @@ import numpy as np
 import pytest
 import torch
 
-from spacetrack.engine.metrics import box_iou, detection_metrics, interpolated_ap, match_detections
+from spacetrack.engine.metrics import (
+    box_iou,
+    confusion_matrix,
+    detection_metrics,
+    interpolated_ap,
+    match_detections,
+)
 from spacetrack.engine.nms import non_max_suppression
 
 GT = np.array([[0, 0, 10, 10], [50, 50, 60, 60]], dtype=float)
@@ -81,3 +87,22 @@ def test_multi_label_nms_keeps_every_class_an_anchor_scores_above_the_threshold(
     assert every[:, 5].tolist() == [1.0, 2.0]  # best score first; the same box under both names
     assert every[:, 4].tolist() == pytest.approx([0.72, 0.54])
     assert every[0, :4].tolist() == every[1, :4].tolist() == [30.0, 35.0, 50.0, 45.0]
+
+
+def test_confusion_matrix_pairs_boxes_whatever_their_class():
+    gt = np.array([[0, 0, 10, 10], [20, 20, 30, 30], [50, 50, 60, 60]], dtype=float)
+    gt_cls = np.array([0, 1, 2])
+    pred = np.array([[0, 0, 10, 10], [21, 20, 31, 30], [80, 80, 90, 90], [50, 50, 60, 60]], dtype=float)
+    scores = np.array([0.9, 0.8, 0.7, 0.1])  # the last one finds target 3 but under min_score
+    pred_cls = np.array([0, 2, 1, 2])  # right, wrong name (1 called 2), nothing there
+    matrix = confusion_matrix(pred, scores, pred_cls, gt, gt_cls, 3)
+    expected = np.zeros((4, 4), dtype=int)
+    expected[0, 0] = 1  # found and named right
+    expected[1, 2] = 1  # a rocket body called debris: off the diagonal, not a miss and a false positive
+    expected[2, 3] = 1  # missed
+    expected[3, 1] = 1  # a detection of nothing
+    np.testing.assert_array_equal(matrix, expected)
+    # one detection pairs with one target: the second box on the same target is a false positive
+    twice = confusion_matrix(pred[[0, 0]], np.array([0.9, 0.8]), np.array([0, 1]), gt[:1], gt_cls[:1], 3)
+    assert twice[0, 0] == 1 and twice[3, 1] == 1 and twice.sum() == 2
+    assert confusion_matrix(pred[:0], scores[:0], pred_cls[:0], gt, gt_cls, 3)[:3, 3].tolist() == [1, 1, 1]

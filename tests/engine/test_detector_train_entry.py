@@ -34,6 +34,7 @@ def test_one_fold_trains_from_the_real_config(tiny_dataset, tmp_path):
     assert (tmp_path / "run" / "weights" / "best.pt").is_file()
     assert (tmp_path / "run" / "plots" / "pr_curve.png").is_file()
     assert (tmp_path / "run" / "plots" / "val_predictions.png").is_file()
+    assert (tmp_path / "run" / "plots" / "confusion_matrix.png").is_file()
     # Resuming the finished run from its last checkpoint goes to the same folder and changes nothing.
     last = tmp_path / "run" / "weights" / "last.pt"
     again = run(
@@ -133,7 +134,7 @@ def test_cross_validation_parent_gets_mean_and_std(tiny_dataset, tmp_path, monke
         [parent_run.info.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent}'"
     )
     artifacts = {a.path for a in client.list_artifacts(children[0].info.run_id, "plots")}
-    assert artifacts == {"plots/pr_curve.png", "plots/val_predictions.png"}
+    assert artifacts == {"plots/pr_curve.png", "plots/confusion_matrix.png", "plots/val_predictions.png"}
     assert sorted(c.data.tags["fold"] for c in children) == ["0", "1"]
 
 

@@ -50,6 +50,7 @@ def test_a_box_found_with_the_wrong_class_counts_only_in_the_class_agnostic_matc
                                 conf_threshold=0.001, iou_threshold=0.6, max_det=300,
                                 class_agnostic=True)  # fmt: skip
     assert not details["matches"][0].any() and metrics["map50"] == 0.0
+    assert details["confusion"][1, 2] == 1 and details["confusion"].sum() == 1  # true 1, called 2
     tp_any, scores, pred_any, gt_any = details["matches_any"]
     assert tp_any.all()  # every IoU threshold: the boxes are the same
     any_class = detection_metrics(*details["matches_any"])

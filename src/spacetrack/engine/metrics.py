@@ -110,3 +110,43 @@ def detection_metrics(
         "score_threshold": float(grid[best]),
         "pr_curves": curves,
     }
+
+
+def confusion_matrix(
+    pred_boxes: np.ndarray,
+    pred_scores: np.ndarray,
+    pred_classes: np.ndarray,
+    gt_boxes: np.ndarray,
+    gt_classes: np.ndarray,
+    num_classes: int,
+    *,
+    min_score: float = 0.25,
+    iou_threshold: float = 0.45,
+) -> np.ndarray:
+    """(num_classes + 1) x (num_classes + 1) counts of one image: row = true class, column = predicted
+    class; the last row counts detections on no target (false positives), the last column targets no
+    detection found (misses).
+
+    Detections scoring at least `min_score` are paired with targets whatever their classes, the pair of
+    highest IoU first, each at most once, down to `iou_threshold`: a box found under another name lands
+    off the diagonal instead of counting both as a miss and as a false positive.
+    """
+    matrix = np.zeros((num_classes + 1, num_classes + 1), dtype=np.int64)
+    keep = pred_scores >= min_score
+    pred_boxes, pred_classes = pred_boxes[keep], pred_classes[keep].astype(int)
+    gt_classes = gt_classes.astype(int)
+    paired_pred = np.zeros(len(pred_boxes), dtype=bool)
+    paired_gt = np.zeros(len(gt_boxes), dtype=bool)
+    if len(pred_boxes) and len(gt_boxes):
+        iou = box_iou(pred_boxes, gt_boxes)
+        for flat in np.argsort(-iou, axis=None, kind="stable"):
+            p, g = np.unravel_index(flat, iou.shape)
+            if iou[p, g] < iou_threshold:
+                break
+            if paired_pred[p] or paired_gt[g]:
+                continue
+            paired_pred[p] = paired_gt[g] = True
+            matrix[gt_classes[g], pred_classes[p]] += 1
+    np.add.at(matrix, (gt_classes[~paired_gt], num_classes), 1)
+    np.add.at(matrix, (num_classes, pred_classes[~paired_pred]), 1)
+    return matrix

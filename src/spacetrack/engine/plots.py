@@ -1,4 +1,5 @@
-"""Pictures of a validation pass: precision-recall curves and a grid of images with their detections."""
+"""Pictures of a validation pass: precision-recall curves, the confusion matrix and a grid of images with
+their detections."""
 
 from __future__ import annotations
 
@@ -26,6 +27,26 @@ def plot_pr_curves(
         ax.plot(np.r_[0, recall], np.r_[1, precision], label=class_names[cls])
     ax.set(xlabel="recall", ylabel="precision", xlim=(0, 1), ylim=(0, 1.02), title="validation, IoU 0.5")
     ax.legend(loc="lower left")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+
+
+def plot_confusion_matrix(matrix: np.ndarray, class_names: Sequence[str], path: str | Path) -> None:
+    """PNG of `confusion_matrix` counts (row: true class, column: predicted class, plus `background` for
+    detections of nothing and `missed` for targets found by none), each cell shaded by its share of its
+    row."""
+    rows = [*class_names, "background"]
+    cols = [*class_names, "missed"]
+    share = matrix / np.maximum(matrix.sum(axis=1, keepdims=True), 1)
+    fig = Figure(figsize=(1.2 * len(cols) + 1.6, 1.0 * len(rows) + 1.2), dpi=100)
+    ax = fig.subplots()
+    ax.imshow(share, cmap="Blues", vmin=0, vmax=1)
+    for (r, c), count in np.ndenumerate(matrix):
+        ax.text(c, r, str(count), ha="center", va="center", color="white" if share[r, c] > 0.6 else "black")
+    ax.set_xticks(range(len(cols)), cols, rotation=30, ha="right")
+    ax.set_yticks(range(len(rows)), rows)
+    ax.set(xlabel="predicted", ylabel="true", title="validation, score >= 0.25, IoU >= 0.45")
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")

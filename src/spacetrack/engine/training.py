@@ -26,7 +26,7 @@ from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_
 from spacetrack.engine.checkpoint import peek_checkpoint, resume_choice, unfinished_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
-from spacetrack.engine.plots import plot_pr_curves, prediction_grid
+from spacetrack.engine.plots import plot_confusion_matrix, plot_pr_curves, prediction_grid
 from spacetrack.engine.pretrained import load_pretrained, resolve_weights
 from spacetrack.engine.trainer import Trainer
 from spacetrack.io import file_hash
@@ -222,6 +222,7 @@ def _log_epoch(
     print(" ".join(f"{k}={v:.4g}" for k, v in record.items()), flush=True)
     if is_best:
         plot_pr_curves(details["pr_curves"], class_names, plots / "pr_curve.png")
+        plot_confusion_matrix(details["confusion"], class_names, plots / "confusion_matrix.png")
         write_image(plots / "val_predictions.png", prediction_grid(details["examples"], class_names))
 
 
@@ -235,5 +236,5 @@ def _log_best(best: dict, summary: dict[str, float], result: dict, plots: Path) 
     """The best epoch's metrics to MLflow, with the best weights and plots."""
     log_metrics_step({f"best_{k}": v for k, v in summary.items()} | {"best_epoch": best["epoch"]}, step=0)
     log_artifact_file(result["best"], "weights")
-    for name in ("pr_curve.png", "val_predictions.png"):
+    for name in ("pr_curve.png", "confusion_matrix.png", "val_predictions.png"):
         log_artifact_file(plots / name, "plots")

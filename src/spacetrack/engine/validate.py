@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from spacetrack.engine.boxes import xywh_to_xyxy
-from spacetrack.engine.metrics import detection_metrics, match_detections
+from spacetrack.engine.metrics import confusion_matrix, detection_metrics, match_detections
 from spacetrack.engine.nms import non_max_suppression
 
 
@@ -30,7 +30,8 @@ def evaluate(
 
     metrics: `map50`, `map50_95`, `precision`, `recall`, `recall_at_score` (recall at score >= 0.5, see
     `detection_metrics`) and, with `loss_fn`, `val_box`, `val_obj`,
-    `val_cls` (per image). details: `pr_curves` and `examples` (the first batch's images with their
+    `val_cls` (per image). details: `pr_curves`, `confusion` (the `confusion_matrix` summed over the
+    images, detections scoring >= 0.25) and `examples` (the first batch's images with their
     detections and ground truth, `xyxy` pixels of the letterboxed input) for plots, and `matches`, the
     arrays `detection_metrics` took (true-positive flags, scores, predicted and true classes), so that
     the metrics of several loaders can be pooled; with `class_agnostic`, also `matches_any`, the same with
@@ -42,6 +43,7 @@ def evaluate(
     model.eval()
     tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
     multi: list[list[np.ndarray]] = [[], [], [], []]
+    confusion = None
     losses = torch.zeros(3)
     examples: dict[str, object] = {}
     num_images = 0
@@ -54,6 +56,9 @@ def evaluate(
         nms = {"conf_threshold": conf_threshold, "iou_threshold": iou_threshold, "max_det": max_det}
         detections = non_max_suppression(decoded, **nms)
         every_class = non_max_suppression(decoded, **nms, multi_label=True) if multi_label else []
+        num_classes = max(decoded.shape[2] - 5, 1)
+        if confusion is None:
+            confusion = np.zeros((num_classes + 1, num_classes + 1), dtype=np.int64)
         size = torch.tensor(x.shape[2:][::-1] * 2, dtype=torch.float32)
         batch_dets, batch_gts = [], []
         for i, det in enumerate(detections):
@@ -62,6 +67,7 @@ def evaluate(
             gt_boxes = (xywh_to_xyxy(mine[:, 2:6]) * size).numpy()
             gt_cls = mine[:, 1].numpy()
             tps.append(match_detections(det[:, :4], det[:, 4], det[:, 5], gt_boxes, gt_cls))
+            confusion += confusion_matrix(det[:, :4], det[:, 4], det[:, 5], gt_boxes, gt_cls, num_classes)
             if class_agnostic:
                 one = np.zeros(len(det)), np.zeros(len(gt_cls))
                 tps_any.append(match_detections(det[:, :4], det[:, 4], one[0], gt_boxes, one[1]))
@@ -83,7 +89,8 @@ def evaluate(
     metrics = {k: float(result[k]) for k in ("map50", "map50_95", "precision", "recall", "recall_at_score")}
     if loss_fn is not None:
         metrics.update(zip(("val_box", "val_obj", "val_cls"), (losses / num_images).tolist(), strict=True))
-    details = {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches}
+    details = {"pr_curves": result["pr_curves"], "examples": examples, "matches": matches,
+               "confusion": confusion}  # fmt: skip
     if class_agnostic:
         tp, found, pred, truth = matches
         details["matches_any"] = (np.concatenate(tps_any), found, np.zeros_like(pred), np.zeros_like(truth))
