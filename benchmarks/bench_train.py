@@ -1,5 +1,6 @@
-"""Detector training throughput: float32 against bfloat16 autocast, and decoded-frame crops against a
-JPEG decode per sample, in one run -> reports/train.json and reports/train.md.
+"""Detector training throughput: float32 against bfloat16 autocast, NCHW against channels-last (NHWC)
+memory layout, and decoded-frame crops against a JPEG decode per sample, in one run -> reports/train.json
+and reports/train.md.
 
     python benchmarks/bench_train.py                 # YOLOv5s, 256-px crops, batch 8, 1 and 2 threads
     python benchmarks/bench_train.py --steps 3 --threads 1
@@ -7,7 +8,9 @@ JPEG decode per sample, in one run -> reports/train.json and reports/train.md.
 Training step: forward, YOLO loss, backward and SGD step on a batch of real crops (random ones where
 the dataset is not built). bfloat16 runs through `torch.autocast("cpu", dtype=torch.bfloat16)`; the
 report says whether this CPU computes bfloat16 natively (`native_bfloat16`, as the trainer detects it:
-only then does the trainer use it). Steps of both precisions alternate, so load changes hit both alike.
+only then does the trainer use it). Channels-last puts the model and each batch in NHWC layout, as the
+trainer does with `train.trainer.channels_last: true` (the default). Steps of every contender alternate,
+so load changes hit all alike.
 Data: samples per second of `CropDataset` reading the `FrameStore` cache against the whole-frame
 `YoloDataset` that decodes the JPEG (and letterboxes it) for every sample.
 """
@@ -46,10 +49,15 @@ def crop_data(root: Path, size: int) -> CropDataset | None:
                        frame_stride=4, augment=build_augmentation(**AUGMENT))  # fmt: skip
 
 
-def training_step(size: int, batch: int, data: CropDataset | None, dtype: torch.dtype | None):
-    """A callable running one training step of a fresh YOLOv5s in `dtype` autocast (None: float32)."""
+def training_step(
+    size: int, batch: int, data: CropDataset | None, dtype: torch.dtype | None, channels_last: bool = False
+):
+    """A callable running one training step of a fresh YOLOv5s in `dtype` autocast (None: float32), in
+    channels-last layout or not."""
     torch.manual_seed(0)
     model = YOLOv5(num_classes=3).train()
+    layout = torch.channels_last if channels_last else torch.contiguous_format
+    model.to(memory_format=layout)
     loss_fn = YoloLoss(anchors=model.detect.anchors, strides=model.stride, num_classes=3, image_size=size)
     optimizer = build_optimizer(model, lr0=0.001, momentum=0.9, weight_decay=5e-4)
     if data is not None:
@@ -59,8 +67,9 @@ def training_step(size: int, batch: int, data: CropDataset | None, dtype: torch.
         targets = torch.tensor([[i, i % 3, 0.5, 0.5, 0.1, 0.1] for i in range(batch)])
 
     def step() -> None:
+        x = (images.float() / 255).contiguous(memory_format=layout)
         with torch.autocast("cpu", dtype=dtype or torch.bfloat16, enabled=dtype is not None):
-            raw = model(images.float() / 255)
+            raw = model(x)
         loss, _ = loss_fn([p.float() for p in raw], targets)
         loss.backward()
         optimizer.step()
@@ -113,25 +122,33 @@ def main() -> None:
     )
     for threads in tqdm(args.threads, desc="thread counts", unit="setting"):
         torch.set_num_threads(threads)
-        calls = {"float32": training_step(args.size, args.batch, crops, None),
-                 "bfloat16": training_step(args.size, args.batch, crops, torch.bfloat16)}  # fmt: skip
+        calls = {
+            f"{precision} {layout}": training_step(args.size, args.batch, crops, dtype, layout == "NHWC")
+            for precision, dtype in (("float32", None), ("bfloat16", torch.bfloat16))
+            for layout in ("NCHW", "NHWC")
+        }
         wall, _ = interleaved_samples(calls, repeats=args.steps)
-        fp32 = summarize(wall["float32"], scale=1.0)["median"]
+        fp32 = summarize(wall["float32 NCHW"], scale=1.0)["median"]
         for name, samples in wall.items():
+            precision, layout = name.split()
             median = summarize(samples, scale=1.0)["median"]
-            entry = {"precision": name, "threads": threads, "img_per_s": args.batch / median,
-                     "step_s": summarize(samples, scale=1.0), "x_float32_time": median / fp32}  # fmt: skip
+            entry = {"precision": precision, "layout": layout, "threads": threads,
+                     "img_per_s": args.batch / median, "step_s": summarize(samples, scale=1.0),
+                     "x_float32_time": median / fp32}  # fmt: skip
             record["rows"].append(entry)
-            rows.append([name, threads, entry["img_per_s"], median, entry["x_float32_time"]])
+            rows.append([precision, layout, threads, entry["img_per_s"], median, entry["x_float32_time"]])
     data = data_rates(args.data, args.size, samples=args.samples)
     record["data"] = [{"source": r[0], "samples_per_s": r[1]} for r in data]
     md = (
         f"# Detector training throughput (CPU)\n\nYOLOv5s, batch {args.batch} of {args.size}-px crops "
         f"({'real crops of ' + str(args.data) if crops else 'random images'}), forward + loss + backward + "
-        f"SGD step, medians of {args.steps} steps per row, precisions alternating. This CPU computes "
+        f"SGD step, medians of {args.steps} steps per row, contenders alternating. This CPU computes "
         f"bfloat16 natively: **{'yes' if record['native_bfloat16'] else 'no'}** (the trainer uses "
-        "bfloat16 only where it does; elsewhere it is emulated).\n\n"
-        + markdown_table(["precision", "threads", "img/s", "s per step", "x float32 time"], rows)
+        "bfloat16 only where it does; elsewhere it is emulated). Layout NHWC: channels-last, the "
+        "trainer's default.\n\n"
+        + markdown_table(
+            ["precision", "layout", "threads", "img/s", "s per step", "x float32 NCHW time"], rows
+        )
     )
     if data:
         md += (

@@ -55,7 +55,7 @@ MULTI = "_multi"
 # `evaluate`'s matches -> the suffix of the metrics computed from them
 KINDS = {"matches": "", "matches_any": ANY, "matches_multi": MULTI}
 # Parameters that do not change what training learns: a run differing only in them is reused.
-NEUTRAL = ("threads", "device", "workers")
+NEUTRAL = ("threads", "device", "workers", "channels_last")
 # Training keys added after runs were made, at the value that trains as those runs did: a run without the
 # key matches that value.
 ADDED_LATER = {"train.trainer.sync_bn": "False"}

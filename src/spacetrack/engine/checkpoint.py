@@ -61,8 +61,9 @@ def load_detector(path: str | Path) -> YOLOv5:
     return model.eval()
 
 
-# Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker.
-RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes")
+# Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker; the
+# memory layout of the activations changes the speed, not what is learned (only the order of sums).
+RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes", "channels_last")
 # Trainer keywords newer than some checkpoints, with the value those checkpoints were trained with.
 LATER_SETTINGS = {"sync_bn": False}
 

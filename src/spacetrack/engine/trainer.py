@@ -85,6 +85,7 @@ class Trainer:
         progress: bool = True,
         checkpoint_minutes: float | None = 10.0,
         sync_bn: bool = False,
+        channels_last: bool = True,
     ) -> None:
         self.settings = {k: v for k, v in locals().items() if k != "self"}
         for key, value in self.settings.items():
@@ -143,6 +144,8 @@ class Trainer:
         device = process_device(self.device, world, key="train.trainer.device")
         share = check_batch_split(self.batch_size, world, key="train.trainer.batch_size")
         model.to(device)
+        if self.channels_last:
+            model.to(memory_format=torch.channels_last)
         self.autocast = autocast_dtype(device, self.amp)
         processes = f"; {world.size} processes of {share} images a batch" if world.distributed else ""
         print(
@@ -262,8 +265,11 @@ class Trainer:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, [box, obj, cls] per image) of a batch of uint8 images and its target rows."""
         device = run.device
+        x = images.to(device).float() / 255
+        if self.channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
         with torch.autocast(device.type, dtype=self.autocast, enabled=self.autocast is not None):
-            raw = run.forward(images.to(device).float() / 255)
+            raw = run.forward(x)
         return loss_fn([p.float() for p in raw], targets.to(device))
 
     def _checkpoint_if_due(
