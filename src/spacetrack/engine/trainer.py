@@ -22,13 +22,7 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from spacetrack.data.yolo_dataset import collate
-from spacetrack.engine.checkpoint import (
-    RESULT_NEUTRAL,
-    checkpoint_settings,
-    differences,
-    load_checkpoint,
-    save_checkpoint,
-)
+from spacetrack.engine.checkpoint import save_checkpoint
 from spacetrack.engine.distributed import (
     World,
     batches_per_epoch,
@@ -36,14 +30,13 @@ from spacetrack.engine.distributed import (
     check_batch_split,
     collectives_in_step,
     current_world,
-    distribute_model,
     process_device,
     rank0_decides,
     shard_of_batches,
-    sum_across,
 )
-from spacetrack.engine.optim import ModelEMA, build_optimizer, lr_factor, set_learning_rates
+from spacetrack.engine.optim import lr_factor, set_learning_rates
 from spacetrack.engine.precision import autocast_dtype
+from spacetrack.engine.train_state import LossTally, RunState
 from spacetrack.engine.validate import evaluate
 
 EpochCallback = Callable[[dict[str, float], dict[str, Any], bool], None]
@@ -138,7 +131,7 @@ class Trainer:
             "last": weights / "last.pt",
         }
 
-    def _start(self, model: nn.Module, settings: dict[str, Any], extra: dict[str, Any]) -> _Run:
+    def _start(self, model: nn.Module, settings: dict[str, Any], extra: dict[str, Any]) -> RunState:
         """This process's device, precision and share of the batch; the training state of `model`."""
         world = current_world()
         device = process_device(self.device, world, key="train.trainer.device")
@@ -152,14 +145,14 @@ class Trainer:
             f"training on {device} in {self.autocast or torch.float32} (amp={self.amp}){processes}",
             flush=True,
         )
-        return _Run(self, model, settings, extra, device, world)
+        return RunState(self, model, settings, extra, device, world)
 
     def _val_loader(self, val_set: Dataset) -> DataLoader:
         return DataLoader(val_set, batch_size=self.batch_size, num_workers=self.workers, collate_fn=collate)
 
     def _validate(
         self,
-        run: _Run,
+        run: RunState,
         loss_fn: Callable,
         val_loader: DataLoader | None,
         epoch: int,
@@ -191,14 +184,14 @@ class Trainer:
         return broadcast_object(record, run.world), details
 
     @staticmethod
-    def _save_epoch(run: _Run, weights: Path, is_best: bool) -> None:
+    def _save_epoch(run: RunState, weights: Path, is_best: bool) -> None:
         save_checkpoint(weights / "last.pt", run.state())
         if is_best:
             save_checkpoint(weights / "best.pt", run.state())
 
     def _train_epoch(
         self,
-        run: _Run,
+        run: RunState,
         loss_fn: Callable,
         train_set: Dataset,
         epoch: int,
@@ -210,7 +203,7 @@ class Trainer:
         `checkpoint_minutes` a checkpoint is written at the next optimiser step, holding how far the
         epoch got."""
         skip = run.partial.pop("batch", 0)
-        tally = _Tally(run.partial.pop("progress", None), run.world)
+        tally = LossTally(run.partial.pop("progress", None), run.world)
         run.partial.clear()
         target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
         run.forward.train()
@@ -248,7 +241,7 @@ class Trainer:
         return DataLoader(train_set, batch_size=self.batch_size // world.size, sampler=mine,
                           num_workers=self.workers, collate_fn=collate)  # fmt: skip
 
-    def _set_rates(self, run: _Run, iteration: int, num_batches: int, target_lr: float) -> None:
+    def _set_rates(self, run: RunState, iteration: int, num_batches: int, target_lr: float) -> None:
         """Learning rates and momentum of batch `iteration` (counted over the whole run)."""
         set_learning_rates(
             run.optimizer,
@@ -261,7 +254,7 @@ class Trainer:
         )
 
     def _forward(
-        self, run: _Run, loss_fn: Callable, images: torch.Tensor, targets: torch.Tensor
+        self, run: RunState, loss_fn: Callable, images: torch.Tensor, targets: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, [box, obj, cls] per image) of a batch of uint8 images and its target rows."""
         device = run.device
@@ -273,7 +266,7 @@ class Trainer:
         return loss_fn([p.float() for p in raw], targets.to(device))
 
     def _checkpoint_if_due(
-        self, run: _Run, tally: _Tally, path: Path, next_batch: int, num_batches: int, last_save: float
+        self, run: RunState, tally: LossTally, path: Path, next_batch: int, num_batches: int, last_save: float
     ) -> float:
         """After an optimiser step: write `path` with how far the epoch got (`next_batch`) when rank 0
         last wrote it `checkpoint_minutes` ago or more and the epoch goes on; when it was last written."""
@@ -298,109 +291,3 @@ def _diverged(
         f"training loss is {loss.item()} at epoch {epoch} batch {batch}; stopped, {kept}. Lower "
         "train.trainer.lr0 or check the labels."
     )
-
-
-class _Tally:
-    """An epoch's [box, obj, cls] loss sums (per-image means times images) and images so far, and its
-    training seconds. Each process counts its own; rank 0 also what a mid-epoch checkpoint it resumes
-    from had counted (`progress`: sums, images, seconds, over all processes)."""
-
-    def __init__(self, progress: tuple[torch.Tensor, int, float] | None, world: World) -> None:
-        resumed = progress is not None and world.is_main
-        self.sums, self.seen, self.elapsed = progress if resumed else (torch.zeros(3), 0, 0.0)
-        self.started = time.perf_counter()
-
-    def add(self, components: torch.Tensor, images: int) -> None:
-        self.sums += components.cpu() * images
-        self.seen += images
-
-    def totals(self, world: World) -> tuple[torch.Tensor, int, float]:
-        """(loss sums, images) of all processes, and the seconds so far (collective: every process
-        calls it)."""
-        counts = sum_across(torch.cat((self.sums, torch.tensor([float(self.seen)]))), world)
-        return counts[:3], int(counts[3]), self.elapsed + time.perf_counter() - self.started
-
-    def epoch_means(self, world: World) -> tuple[list[float], float]:
-        """Mean [box, obj, cls] loss per image and images per second, over all processes."""
-        sums, seen, elapsed = self.totals(world)
-        return (sums / max(seen, 1)).tolist(), seen / max(elapsed, 1e-9)
-
-
-class _Run:
-    """What a training carries from step to step and saves: the model, its optimiser, EMA and scaler,
-    the last finished epoch, the best fitness, the history, and how far an unfinished epoch got; the
-    process's world and device, and `forward`: the model, or its DDP wrapper in several processes."""
-
-    def __init__(
-        self,
-        trainer: Trainer,
-        model: nn.Module,
-        settings: dict,
-        extra: dict,
-        device: torch.device,
-        world: World,
-    ) -> None:
-        self.model, self.settings, self.extra, self.device, self.world = model, settings, extra, device, world
-        self.forward = distribute_model(model, device, world, sync_bn=trainer.sync_bn)
-        self.accumulate = max(round(trainer.nbs / trainer.batch_size), 1)
-        self.grad_clip = trainer.grad_clip
-        decay = trainer.weight_decay * trainer.batch_size * self.accumulate / trainer.nbs
-        self.optimizer = build_optimizer(
-            model, lr0=trainer.lr0, momentum=trainer.momentum, weight_decay=decay
-        )
-        self.ema = ModelEMA(model, decay=trainer.ema_decay, tau=trainer.ema_tau)
-        self.scaler = torch.amp.GradScaler("cuda", enabled=trainer.amp and device.type == "cuda")
-        self.epoch, self.best, self.history, self.partial = -1, -1.0, [], {}
-
-    def restore(self, path: str | Path) -> None:
-        """Continue from the checkpoint at `path`; refuse it when its settings differ. One of another
-        number of processes is taken: the batches and their order do not depend on it."""
-        state = load_checkpoint(path, arch=self.model.arch)
-        changed = differences(checkpoint_settings(state), self.settings, ignore=RESULT_NEUTRAL)
-        if changed:
-            raise ValueError(f"cannot resume {path} with other settings: {changed}")
-        before = state.get("world_size", 1)
-        if before != self.world.size:
-            print(f"resuming {path}, trained in {before} process(es), in {self.world.size}", flush=True)
-        self.model.load_state_dict(state["model"])
-        self.ema.module.load_state_dict(state["ema"])
-        self.ema.updates = state["ema_updates"]
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.scaler.load_state_dict(state["scaler"])
-        self.epoch, self.best, self.history = state["epoch"], state["best_fitness"], state["history"]
-        self.partial = dict(state.get("partial") or {})
-
-    def step(self) -> None:
-        """One optimiser step on the gradients so far (unscaled, clipped), then the EMA update."""
-        self.scaler.unscale_(self.optimizer)
-        nn.utils.clip_grad_norm_(self.model.parameters(), max_norm=self.grad_clip)
-        self.scaler.step(self.optimizer)
-        self.scaler.update()
-        self.optimizer.zero_grad()
-        self.ema.update(self.model)
-
-    def finish_epoch(self, epoch: int, record: dict[str, float]) -> bool:
-        """Record a finished epoch; whether it is the best so far."""
-        self.epoch = epoch
-        self.history.append(record)
-        is_best = record["fitness"] > self.best
-        self.best = max(self.best, record["fitness"])
-        return is_best
-
-    def state(self, partial: dict | None = None) -> dict[str, Any]:
-        """The checkpoint: everything `restore` needs (see `engine.checkpoint`)."""
-        return {
-            "arch": self.model.arch,
-            "model": self.model.state_dict(),
-            "ema": self.ema.module.state_dict(),
-            "ema_updates": self.ema.updates,
-            "optimizer": self.optimizer.state_dict(),
-            "scaler": self.scaler.state_dict(),
-            "epoch": self.epoch,
-            "partial": partial,
-            "best_fitness": self.best,
-            "history": self.history,
-            "settings": self.settings,
-            "world_size": self.world.size,
-            **self.extra,
-        }
