@@ -31,7 +31,7 @@ from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
 from spacetrack.engine.checkpoint import load_detector
-from spacetrack.engine.metrics import detection_metrics
+from spacetrack.engine.metrics import CONFUSION_IOU, CONFUSION_MIN_SCORE, detection_metrics
 from spacetrack.engine.validate import evaluate
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import artifact_file, finished_runs, flatten_params, tracking_uri
@@ -78,7 +78,7 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
         name: [v for v in val_names if scenario[v] == name]
         for name in sorted({scenario[v] for v in val_names})
     }
-    out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, 0
+    out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, []
     for group, names in groups.items():
         data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
                            store=store, frame_stride=frame_stride)  # fmt: skip
@@ -90,10 +90,10 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
             pooled[kind].append(details[kind])
         out[group] = summary(details) | {"frames": len(data)}
         frames += len(data)
-        confusion = confusion + details["confusion"]
+        confusion.append(details["confusion"])
     # "all": the scenarios' matches pooled, one mAP over every frame (not a mean of the scenarios')
     joined = {kind: [np.concatenate(a) for a in zip(*parts, strict=True)] for kind, parts in pooled.items()}
-    counts = {"classes": list(manifest["class_names"]), "counts": confusion.tolist()}
+    counts = {"classes": list(manifest["class_names"]), "counts": np.sum(confusion, axis=0).tolist()}
     return {"all": summary(joined) | {"frames": frames}, "confusion": counts} | out
 
 
@@ -240,7 +240,8 @@ def confusion_tables(results: list[dict]) -> list[str]:
         counts = np.sum([r["confusion"]["counts"] for r in mine], axis=0)
         folds = ",".join(str(r["fold"]) for r in mine)
         lines += ["", f"{name}, folds {folds}: true class (rows) against predicted (columns), detections "
-                  "scoring >= 0.25 paired with targets at IoU >= 0.45 whatever their class:", "",
+                  f"scoring >= {CONFUSION_MIN_SCORE} paired with targets at IoU >= {CONFUSION_IOU} whatever "
+                  "their class:", "",
                   "| true / predicted | " + " | ".join([*classes, "missed"]) + " |",
                   "|" + "---|" * (len(classes) + 2)]  # fmt: skip
         for label, row in zip([*classes, "background"], counts, strict=True):

@@ -10,6 +10,9 @@ import numpy as np
 
 IOU_THRESHOLDS = np.linspace(0.5, 0.95, 10)
 RECALL_POINTS = np.linspace(0.0, 1.0, 101)
+# `confusion_matrix`: the detections it counts and the overlap that pairs one with a target
+CONFUSION_MIN_SCORE = 0.25
+CONFUSION_IOU = 0.45
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -120,8 +123,8 @@ def confusion_matrix(
     gt_classes: np.ndarray,
     num_classes: int,
     *,
-    min_score: float = 0.25,
-    iou_threshold: float = 0.45,
+    min_score: float = CONFUSION_MIN_SCORE,
+    iou_threshold: float = CONFUSION_IOU,
 ) -> np.ndarray:
     """(num_classes + 1) x (num_classes + 1) counts of one image: row = true class, column = predicted
     class; the last row counts detections on no target (false positives), the last column targets no

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from spacetrack.engine.metrics import CONFUSION_IOU, CONFUSION_MIN_SCORE
 from spacetrack.io import atomic_path
 from spacetrack.viz.draw import draw_boxes
 from spacetrack.viz.sheet import contact_sheet
@@ -46,7 +47,8 @@ def plot_confusion_matrix(matrix: np.ndarray, class_names: Sequence[str], path: 
         ax.text(c, r, str(count), ha="center", va="center", color="white" if share[r, c] > 0.6 else "black")
     ax.set_xticks(range(len(cols)), cols, rotation=30, ha="right")
     ax.set_yticks(range(len(rows)), rows)
-    ax.set(xlabel="predicted", ylabel="true", title="validation, score >= 0.25, IoU >= 0.45")
+    title = f"validation, score >= {CONFUSION_MIN_SCORE}, IoU >= {CONFUSION_IOU}"
+    ax.set(xlabel="predicted", ylabel="true", title=title)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")

@@ -31,7 +31,7 @@ def evaluate(
     metrics: `map50`, `map50_95`, `precision`, `recall`, `recall_at_score` (recall at score >= 0.5, see
     `detection_metrics`) and, with `loss_fn`, `val_box`, `val_obj`,
     `val_cls` (per image). details: `pr_curves`, `confusion` (the `confusion_matrix` summed over the
-    images, detections scoring >= 0.25) and `examples` (the first batch's images with their
+    images, detections scoring >= `CONFUSION_MIN_SCORE`) and `examples` (the first batch's images with their
     detections and ground truth, `xyxy` pixels of the letterboxed input) for plots, and `matches`, the
     arrays `detection_metrics` took (true-positive flags, scores, predicted and true classes), so that
     the metrics of several loaders can be pooled; with `class_agnostic`, also `matches_any`, the same with
@@ -43,7 +43,8 @@ def evaluate(
     model.eval()
     tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
     multi: list[list[np.ndarray]] = [[], [], [], []]
-    confusion = None
+    num_classes = model.detect.num_classes
+    confusion = np.zeros((num_classes + 1, num_classes + 1), dtype=np.int64)
     losses = torch.zeros(3)
     examples: dict[str, object] = {}
     num_images = 0
@@ -56,9 +57,6 @@ def evaluate(
         nms = {"conf_threshold": conf_threshold, "iou_threshold": iou_threshold, "max_det": max_det}
         detections = non_max_suppression(decoded, **nms)
         every_class = non_max_suppression(decoded, **nms, multi_label=True) if multi_label else []
-        num_classes = max(decoded.shape[2] - 5, 1)
-        if confusion is None:
-            confusion = np.zeros((num_classes + 1, num_classes + 1), dtype=np.int64)
         size = torch.tensor(x.shape[2:][::-1] * 2, dtype=torch.float32)
         batch_dets, batch_gts = [], []
         for i, det in enumerate(detections):
