@@ -79,6 +79,14 @@ def test_settings_hash_ignores_fold_output_and_speed_but_not_what_changes_number
     assert table4.settings_hash(table4.piece_overrides("gt_deepsort_paper", 0, [])) != base
 
 
+def test_the_detection_score_counts_only_when_it_is_not_the_class_score_of_before():
+    paper = table4.piece_overrides("yolo_deepsort_paper", 0, [])
+    assert table4.settings_hash(paper) == table4.settings_hash(paper + ["detector.score=class"])
+    objectness = table4.piece_overrides("yolo_deepsort_paper_objectness", 0, [])
+    assert "detector.score=objectness" in objectness
+    assert table4.settings_hash(objectness) != table4.settings_hash(paper)
+
+
 def test_re_id_weights_count_only_for_a_tracker_that_matches_on_appearance():
     sort = table4.piece_overrides("yolo_sort", 0, [])
     with_features = table4.piece_overrides("yolo_sort", 0, ["reid.weights=weights/reid_fold3.pt"])

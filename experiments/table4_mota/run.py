@@ -81,6 +81,8 @@ ROWS: dict[str, tuple[str, list[str]]] = {
     "gam_deepsort_paper": ("paper settings, YOLOv5s + GAM + DWT/HSV (the paper's method)", GAM + ["tracker=deepsort_paper"] + PAPER_FILTER + REFERENCE_MATCHING),
     "gam_deepsort_original": ("original DeepSORT settings, YOLOv5s + GAM + DWT/HSV", GAM + ["tracker=deepsort_original"] + PAPER_FILTER + REFERENCE_MATCHING),
     "gam_deepsort_paper_hold": ("the paper's method, filter with a 30-frame hold (beyond the paper)", GAM + ["tracker=deepsort_paper"] + HOLD + REFERENCE_MATCHING),
+    "yolo_deepsort_paper_objectness": ("paper settings, plain YOLOv5s, each box scored by its objectness (beyond the paper)", YOLO + ["tracker=deepsort_paper", "detector.score=objectness"] + PAPER_FILTER + REFERENCE_MATCHING),
+    "gam_deepsort_paper_objectness": ("the paper's method, each box scored by its objectness (beyond the paper)", GAM + ["tracker=deepsort_paper", "detector.score=objectness"] + PAPER_FILTER + REFERENCE_MATCHING),
     "yolo_deepsort_paper_nofilter": ("paper settings, plain YOLOv5s, no dynamic-target filter", YOLO + ["tracker=deepsort_paper"] + NOFILTER + REFERENCE_MATCHING),
     "yolo_sort": ("SORT (IoU only), plain YOLOv5s: the floor", YOLO + ["tracker=sort", "reid.weights=none"] + PAPER_FILTER),
     "gt_deepsort_original": ("ground-truth boxes, original DeepSORT settings, track-level decision (online)", GT + ["tracker=deepsort_original"] + TRACK + SHIPPED_REID),
@@ -201,6 +203,8 @@ def _without_unused(settings: dict) -> dict:
     settings["detector_run"] = {
         "model" if k == "gam_position" else k: v for k, v in settings["detector_run"].items()
     }
+    if settings["detector"].get("score") == "class":
+        del settings["detector"]["score"]  # a detection's score was always objectness x class before
     before_options = (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None),
                       ("coast_in_view", False), ("occluded_area", None))  # fmt: skip
     for key, before in before_options:

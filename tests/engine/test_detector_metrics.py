@@ -89,6 +89,21 @@ def test_multi_label_nms_keeps_every_class_an_anchor_scores_above_the_threshold(
     assert every[0, :4].tolist() == every[1, :4].tolist() == [30.0, 35.0, 50.0, 45.0]
 
 
+def test_objectness_score_keeps_a_box_the_model_cannot_name_and_still_names_it_by_its_best_class():
+    # Objectness 0.9, classes 0.45 / 0.40 / 0.1: a target the model splits between two names.
+    pred = torch.tensor([[[40, 40, 20, 10, 0.9, 0.45, 0.40, 0.1], [90, 90, 8, 8, 0.2, 0.9, 0.1, 0.1]]])
+    (by_class,) = non_max_suppression(pred, conf_threshold=0.5, iou_threshold=0.5)
+    assert len(by_class) == 0  # 0.9 x 0.45 = 0.405 and 0.18: nothing reaches 0.5
+    (by_object,) = non_max_suppression(pred, conf_threshold=0.5, iou_threshold=0.5, score="objectness")
+    assert by_object[:, 4].tolist() == pytest.approx([0.9])
+    assert by_object[:, 5].tolist() == [0.0]
+    assert by_object[0, :4].tolist() == [30.0, 35.0, 50.0, 45.0]
+    with pytest.raises(ValueError, match="score must be one of class, objectness, got 'max'"):
+        non_max_suppression(pred, score="max")
+    with pytest.raises(ValueError, match="multi_label"):
+        non_max_suppression(pred, multi_label=True, score="objectness")
+
+
 def test_confusion_matrix_pairs_boxes_whatever_their_class():
     gt = np.array([[0, 0, 10, 10], [20, 20, 30, 30], [50, 50, 60, 60]], dtype=float)
     gt_cls = np.array([0, 1, 2])

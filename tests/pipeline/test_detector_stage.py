@@ -26,3 +26,25 @@ def test_boxes_are_tlwh_inside_the_frame(tmp_path):
     assert set(np.unique(boxes[:, 5])) <= {0, 1, 2}
     with pytest.raises(ValueError, match="multiple of 32"):
         YoloDetector(weights=weights, image_size=100)
+
+
+def test_objectness_scores_are_never_below_class_scores_and_name_the_score_in_the_identity(tmp_path):
+    torch.manual_seed(0)
+    model = YOLOv5(num_classes=3, depth_multiple=0.33, width_multiple=0.125)
+    weights = tmp_path / "best.pt"
+    save_checkpoint(weights, {"arch": model.arch, "ema": model.state_dict()})
+    rgb = np.random.default_rng(1).integers(0, 255, (64, 96, 3), dtype=np.uint8)
+    kwargs = {
+        "weights": weights,
+        "conf_threshold": 0.0,
+        "iou_threshold": 1.0,
+        "max_det": 10_000,
+        "device": "cpu",
+    }
+    by_class, by_object = YoloDetector(**kwargs), YoloDetector(**kwargs, score="objectness")
+    class_boxes, object_boxes = by_class(rgb, 1), by_object(rgb, 1)
+    assert len(class_boxes) == len(object_boxes) > 0  # NMS off: one box per anchor either way
+    assert object_boxes[:, 4].max() > class_boxes[:, 4].max()  # a class probability is under 1
+    assert "score=" not in by_class.identity and "score=objectness" in by_object.identity
+    with pytest.raises(ValueError, match="detector.score must be one of class, objectness, got 'best'"):
+        YoloDetector(weights=weights, score="best")

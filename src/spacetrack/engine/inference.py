@@ -47,12 +47,13 @@ def frame_detections(
     conf_threshold: float,
     iou_threshold: float,
     max_det: int,
+    score: str = "class",
 ) -> list[np.ndarray]:
     """NMS of decoded network predictions (B, N, 5 + classes), then per frame an (n, 6) float array
     `x1, y1, x2, y2, score, class` in the pixels of that frame (its `network_input` in `prepared`, its
-    (H, W) in `shapes`), best score first."""
+    (H, W) in `shapes`), best score first; `score` as in `non_max_suppression`."""
     detections = non_max_suppression(
-        predictions, conf_threshold=conf_threshold, iou_threshold=iou_threshold, max_det=max_det
+        predictions, conf_threshold=conf_threshold, iou_threshold=iou_threshold, max_det=max_det, score=score
     )
     return [
         to_frame_boxes(det.cpu().numpy(), scale, pad, shape)
@@ -69,10 +70,12 @@ def detect(
     conf_threshold: float = 0.25,
     iou_threshold: float = 0.45,
     max_det: int = 300,
+    score: str = "class",
 ) -> list[np.ndarray]:
     """Per RGB uint8 (H, W, 3) frame an (n, 6) float array `x1, y1, x2, y2, score, class` (xyxy pixels
     of that frame, clipped to it; boxes with no area left out), best score first. `model` is a `YOLOv5`
-    in eval mode (or anything with its `predict`); frames of one call share a size.
+    in eval mode (or anything with its `predict`); frames of one call share a size. `score`: "class"
+    (objectness x best class probability, YOLOv5's) or "objectness" (see `non_max_suppression`).
     """
     prepared = [network_input(frame, image_size) for frame in frames]
     device = next(iter(model.parameters()), torch.zeros(())).device
@@ -84,4 +87,5 @@ def detect(
         conf_threshold=conf_threshold,
         iou_threshold=iou_threshold,
         max_det=max_det,
+        score=score,
     )

@@ -7,6 +7,8 @@ from torchvision.ops import batched_nms
 
 from spacetrack.engine.boxes import xywh_to_xyxy
 
+SCORES = ("class", "objectness")  # a detection's score: objectness x best class probability | objectness
+
 
 def non_max_suppression(
     pred: torch.Tensor,
@@ -15,6 +17,7 @@ def non_max_suppression(
     iou_threshold: float = 0.6,
     max_det: int = 300,
     multi_label: bool = False,
+    score: str = "class",
 ) -> list[torch.Tensor]:
     """Per image an (n, 6) tensor `x1, y1, x2, y2, score, class` (xyxy pixels), best score first.
 
@@ -24,23 +27,32 @@ def non_max_suppression(
     class probability passes `conf_threshold`, not only for its best one: a box the model is unsure how
     to name then also counts, at its lower score, for its second class (how YOLOv5 measures mAP); the
     tracker takes one class per box (the default).
+
+    `score="objectness"` scores each box by its objectness alone, still named by its best class: whether
+    there is a target at all, however the model splits it between classes (for a tracker that follows
+    every class alike). Not with `multi_label`.
     """
+    if score not in SCORES:
+        raise ValueError(f"score must be one of {', '.join(SCORES)}, got {score!r}")
+    if multi_label and score != "class":
+        raise ValueError("multi_label detections are scored by class (score='class')")
     out = []
+    by_class = score == "class"
     num_classes = pred.shape[2] - 5
     for p in pred:
         if num_classes > 1 and multi_label:
             anchor, cls = (p[:, 4:5] * p[:, 5:] > conf_threshold).nonzero(as_tuple=True)
-            score = p[anchor, 4] * p[anchor, 5 + cls]
+            conf = p[anchor, 4] * p[anchor, 5 + cls]
             boxes = xywh_to_xyxy(p[anchor, :4])
         else:
             if num_classes > 1:
                 cls_score, cls = p[:, 5:].max(dim=1)
-                score = p[:, 4] * cls_score
+                conf = p[:, 4] * cls_score if by_class else p[:, 4]
             else:
-                score = p[:, 4]
-                cls = torch.zeros_like(score, dtype=torch.long)
-            keep = score > conf_threshold
-            boxes, score, cls = xywh_to_xyxy(p[keep, :4]), score[keep], cls[keep]
-        kept = batched_nms(boxes.float(), score.float(), cls, iou_threshold)[:max_det]
-        out.append(torch.cat((boxes[kept], score[kept, None], cls[kept, None].to(boxes.dtype)), dim=1))
+                conf = p[:, 4]
+                cls = torch.zeros_like(conf, dtype=torch.long)
+            keep = conf > conf_threshold
+            boxes, conf, cls = xywh_to_xyxy(p[keep, :4]), conf[keep], cls[keep]
+        kept = batched_nms(boxes.float(), conf.float(), cls, iou_threshold)[:max_det]
+        out.append(torch.cat((boxes[kept], conf[kept, None], cls[kept, None].to(boxes.dtype)), dim=1))
     return out

@@ -18,6 +18,7 @@ from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, read_mot
 from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import check_image_size, frame_detections, network_input
+from spacetrack.engine.nms import SCORES
 from spacetrack.engine.precision import native_bfloat16
 from spacetrack.io import file_hash
 from spacetrack.models.yolo import YOLOv5, fuse_for_inference
@@ -86,6 +87,10 @@ class YoloDetector:
     conf_threshold: detections scoring below this are dropped (keep it below the tracker's
         `min_confidence`, so that the cache serves every tracker setting).
     iou_threshold: NMS IoU limit between boxes of one class.
+    score: what a detection's score is, the number the tracker's `min_confidence` compares: "class"
+        (objectness times the best class probability, YOLOv5's, the default) or "objectness" (objectness
+        alone: whether there is a target, however the model splits it between the classes, which the
+        tracker does not tell apart).
     device: "auto" (CUDA when present), "cpu" or "cuda".
     backend: how the network runs; letterbox and NMS are the same for all.
         "torch": a copy with Conv+BN fused, under `inference_mode`, channels-last on the CPU.
@@ -112,6 +117,7 @@ class YoloDetector:
         conf_threshold: float = 0.1,
         iou_threshold: float = 0.45,
         max_det: int = 100,
+        score: str = "class",
         device: str = "auto",
         backend: str = "torch",
         threads: int = 0,
@@ -121,6 +127,8 @@ class YoloDetector:
         calibration_method: str = "minmax",
     ) -> None:
         check_image_size(image_size)
+        if score not in SCORES:
+            raise ValueError(f"detector.score must be one of {', '.join(SCORES)}, got {score!r}")
         self.device = resolve_device(device)
         self.backend = check_backend(backend, self.device.type, DETECTOR_BACKENDS)
         if self.backend == "torch_bf16":
@@ -136,11 +144,13 @@ class YoloDetector:
         self.network = None if self.backend in ONNX_BACKENDS else inference_network(self.model, self.device)
         self._channels_last = self.network is not None and self.device.type == "cpu" and CHANNELS_LAST_CPU
         self.image_size, self.conf_threshold = image_size, conf_threshold
-        self.iou_threshold, self.max_det = iou_threshold, max_det
+        self.iou_threshold, self.max_det, self.score = iou_threshold, max_det, score
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
             f"iou={iou_threshold} backend={self.backend}"
         )
+        if score != "class":  # the default leaves the identity, and so the caches made before, as they were
+            self.identity += f" score={score}"
         if self.backend == "onnxruntime_int8":
             self.identity += f" calibration={self.calibration}"
 
@@ -197,6 +207,7 @@ class YoloDetector:
             conf_threshold=self.conf_threshold,
             iou_threshold=self.iou_threshold,
             max_det=self.max_det,
+            score=self.score,
         )
         return np.column_stack([det[:, :2], det[:, 2:4] - det[:, :2], det[:, 4:6]])
 
