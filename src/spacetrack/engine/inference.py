@@ -70,12 +70,10 @@ def detect(
     conf_threshold: float = 0.25,
     iou_threshold: float = 0.45,
     max_det: int = 300,
-    score: str = "class",
 ) -> list[np.ndarray]:
     """Per RGB uint8 (H, W, 3) frame an (n, 6) float array `x1, y1, x2, y2, score, class` (xyxy pixels
     of that frame, clipped to it; boxes with no area left out), best score first. `model` is a `YOLOv5`
-    in eval mode (or anything with its `predict`); frames of one call share a size. `score`: "class"
-    (objectness x best class probability, YOLOv5's) or "objectness" (see `non_max_suppression`).
+    in eval mode (or anything with its `predict`); frames of one call share a size.
     """
     prepared = [network_input(frame, image_size) for frame in frames]
     device = next(iter(model.parameters()), torch.zeros(())).device
@@ -87,5 +85,4 @@ def detect(
         conf_threshold=conf_threshold,
         iou_threshold=iou_threshold,
         max_det=max_det,
-        score=score,
     )

@@ -10,6 +10,12 @@ from spacetrack.engine.boxes import xywh_to_xyxy
 SCORES = ("class", "objectness")  # a detection's score: objectness x best class probability | objectness
 
 
+def check_score(score: str, key: str = "score") -> None:
+    """A ValueError naming `key` unless `score` is one of `SCORES`."""
+    if score not in SCORES:
+        raise ValueError(f"{key} must be one of {', '.join(SCORES)}, got {score!r}")
+
+
 def non_max_suppression(
     pred: torch.Tensor,
     *,
@@ -32,8 +38,7 @@ def non_max_suppression(
     there is a target at all, however the model splits it between classes (for a tracker that follows
     every class alike). Not with `multi_label`.
     """
-    if score not in SCORES:
-        raise ValueError(f"score must be one of {', '.join(SCORES)}, got {score!r}")
+    check_score(score)
     if multi_label and score != "class":
         raise ValueError("multi_label detections are scored by class (score='class')")
     out = []

@@ -18,7 +18,7 @@ from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, read_mot
 from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import check_image_size, frame_detections, network_input
-from spacetrack.engine.nms import SCORES
+from spacetrack.engine.nms import check_score
 from spacetrack.engine.precision import native_bfloat16
 from spacetrack.io import file_hash
 from spacetrack.models.yolo import YOLOv5, fuse_for_inference
@@ -127,8 +127,7 @@ class YoloDetector:
         calibration_method: str = "minmax",
     ) -> None:
         check_image_size(image_size)
-        if score not in SCORES:
-            raise ValueError(f"detector.score must be one of {', '.join(SCORES)}, got {score!r}")
+        check_score(score, "detector.score")
         self.device = resolve_device(device)
         self.backend = check_backend(backend, self.device.type, DETECTOR_BACKENDS)
         if self.backend == "torch_bf16":
