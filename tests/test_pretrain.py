@@ -8,7 +8,7 @@ import json
 import pytest
 
 from spacetrack.config import compose_config
-from spacetrack.pretrain import check_disjoint
+from spacetrack.pretrain import check_disjoint, check_rendered
 
 
 def manifest(root, seeds, content_hash):
@@ -32,6 +32,13 @@ def test_a_pretraining_set_rendered_from_the_folds_seeds_is_refused(tmp_path):
     apart = manifest(tmp_path / "space_pretrain", [[1000, 0], [1000, 1]], "sha256:pre")
     check_disjoint(apart, cv)  # no error: disjoint seeds
     check_disjoint(apart, tmp_path / "not_built")  # nothing to compare with yet
+
+
+def test_a_pretraining_set_of_another_size_than_its_config_is_refused(tmp_path):
+    older = manifest(tmp_path / "space_pretrain", [[1000, i] for i in range(42)], "sha256:pre")
+    check_rendered(older, 42)  # as configured: no error
+    with pytest.raises(ValueError, match="space_pretrain holds 42 sequences.*asks for 84.*overwrite=true"):
+        check_rendered(older, 84)
 
 
 def test_pretrain_config_trains_on_the_pretraining_set_from_scratch():

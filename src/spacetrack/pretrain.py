@@ -55,9 +55,22 @@ def check_disjoint(pretrain_root: Path, cv_root: Path) -> None:
         )
 
 
+def check_rendered(root: Path, num_sequences: int) -> None:
+    """Refuse a pretraining dataset rendered with another sequence count than its config asks for (an
+    older `data/space_pretrain`): the weights would record settings they were not made with."""
+    found = len(load_manifest(root)["sequences"])
+    if found != num_sequences:
+        raise ValueError(
+            f"the pretraining dataset {root} holds {found} sequences, its config (data.num_sequences) asks "
+            f"for {num_sequences}: render it again with python -m spacetrack.build_data data=pretrain "
+            "seed=1000 overwrite=true"
+        )
+
+
 def run(cfg: DictConfig) -> dict[str, float]:
     """Pretrain one model; write its fp16 weights to `cfg.export_dir`; return the best epoch's metrics."""
     root = Path(cfg.data_root) / cfg.data.name
+    check_rendered(root, int(cfg.data.num_sequences))
     check_disjoint(root, Path(cfg.cv_data))
     result = fit(cfg)
     if not launched_world().is_main:  # one of several processes that trained together: rank 0 exports
