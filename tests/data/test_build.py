@@ -151,6 +151,31 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
     assert hash_of(a) == hash_of(b) != hash_of(c)
 
 
+def test_seen_truth_labels_the_same_images_and_says_so(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for root in (a, b):
+        root.mkdir()
+    build_data.run(_tiny(a, "data.scenario.nominal.sun_phase_deg=[100,120]"))
+    build_data.run(_tiny(b, "data.scenario.nominal.sun_phase_deg=[100,120]", "data.truth=seen"))
+    a, b = a / "space_smoke", b / "space_smoke"
+    images = sorted(p.relative_to(a) for p in a.rglob("img/*"))
+    assert images and all((a / rel).read_bytes() == (b / rel).read_bytes() for rel in images)
+    assert "whole silhouette" in (a / "CARD.md").read_text()
+    assert "pixels the camera shows" in (b / "CARD.md").read_text()
+    assert json.loads((b / "manifest.json").read_text())["config"]["data"]["truth"] == "seen"
+    shrunk = 0
+    for seq in load_manifest(a)["sequences"]:
+        outline, seen = (read_mot(root / seq["name"] / "gt" / "gt.txt") for root in (a, b))
+        np.testing.assert_array_equal(outline[:, :2], seen[:, :2])
+        inside = (seen[:, 2] >= outline[:, 2]) & (seen[:, 3] >= outline[:, 3])
+        inside &= seen[:, 2] + seen[:, 4] <= outline[:, 2] + outline[:, 4]
+        inside &= seen[:, 3] + seen[:, 5] <= outline[:, 3] + outline[:, 5]
+        shown = seen[:, 6] > 0
+        assert inside[shown].all()  # a seen box lies within its silhouette box
+        shrunk += int((seen[shown, 4] * seen[shown, 5] < outline[shown, 4] * outline[shown, 5]).sum())
+    assert shrunk > 0  # side- and back-lit targets lose their night side
+
+
 def test_bad_input_is_refused_before_any_work(tmp_path):
     with pytest.raises(MissingConfigException):
         compose_config("build_data", ["data/scenario=[nominal,moonbase]"])

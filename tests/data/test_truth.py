@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from spacetrack.build_data import make_plan
+from spacetrack.build_data import check_config, make_plan
+from spacetrack.config import compose_config
 from spacetrack.data.raster import Camera
 from spacetrack.data.render import SequenceRenderer
 from spacetrack.data.scenario import scenario_params
@@ -156,3 +157,106 @@ def test_targets_turn_over_time():
     r0, _ = obj.pose(0, CAMERA)
     r1, _ = obj.pose(20, CAMERA)
     assert np.degrees(np.arccos(np.clip((np.trace(r0.T @ r1) - 1) / 2, -1, 1))) > 5.0
+
+
+# The "seen" truth: boxes frame only the object pixels the camera shows above its noise.
+
+
+def _lit_plan(phase: float, **extra):
+    params = scenario_params(
+        "lit", OmegaConf.create({"num_targets": [2, 2], "sun_phase_deg": [phase, phase], **extra})
+    )
+    return plan_sequence(name="s", scenario="lit", params=params, camera=CAMERA, num_frames=24, seed=[7])
+
+
+def test_seen_boxes_frame_the_visible_pixels_that_clear_the_noise():
+    plan = _plan("multi_target", {"num_targets": [6, 6], "sun_phase_deg": [80.0, 110.0]}, seed=5)
+    seen, outline = SequenceRenderer(plan, truth="seen"), SequenceRenderer(plan)
+    checked = shrunk = 0
+    for t in range(0, 48, 6):
+        floor = seen.min_seen_radiance(t)
+        layers = seen.layers(t)
+        radiance = {}
+        for obj, layer in zip(plan.objects, layers, strict=True):
+            if layer is None:
+                continue
+            canvas = np.full((CAMERA.height, CAMERA.width), -1.0, dtype=np.float32)
+            ys, xs = np.nonzero(layer.mask)
+            keep = (ys + layer.y0 >= 0) & (ys + layer.y0 < CAMERA.height)
+            keep &= (xs + layer.x0 >= 0) & (xs + layer.x0 < CAMERA.width)
+            canvas[ys[keep] + layer.y0, xs[keep] + layer.x0] = layer.radiance[ys[keep], xs[keep]].max(axis=1)
+            radiance[obj.id] = canvas
+        rows = {r.id: r for r in seen.truth(t).rows}
+        whole = {r.id: r for r in outline.truth(t).rows}
+        assert set(rows) == set(whole)
+        for oid, (visible, amodal, area) in visible_pixels(seen, t).items():
+            if oid not in rows:
+                continue
+            shown = visible & (radiance[oid] >= floor)
+            row = rows[oid]
+            assert row.visible_px == int(shown.sum())
+            assert row.visibility == pytest.approx(shown.sum() / area)
+            box = tight_box(shown) if shown.any() else tight_box(amodal)
+            assert (row.x, row.y, row.w, row.h) == box, f"frame {t} id {oid}"
+            assert row.visible_px <= whole[oid].visible_px
+            assert row.occluded_px == whole[oid].occluded_px  # shadow is not occlusion
+            shrunk += row.w * row.h < whole[oid].w * whole[oid].h
+            checked += 1
+    assert checked > 20
+    assert shrunk > 0  # at these phase angles some targets are partly in their own shadow
+
+
+def test_the_image_is_the_same_whichever_truth_labels_it():
+    plan = _lit_plan(100.0)
+    a, b = SequenceRenderer(plan).render(5)[0], SequenceRenderer(plan, truth="seen").render(5)[0]
+    np.testing.assert_array_equal(a, b)
+
+
+def test_an_unlit_target_is_hidden_in_seen_truth_but_keeps_its_outline():
+    plan = _lit_plan(60.0, sun=0.0)
+    outline, seen = SequenceRenderer(plan), SequenceRenderer(plan, truth="seen")
+    outlined = [r for t in range(0, 24, 4) for r in outline.truth(t).rows]
+    assert outlined and all(r.visible_px > 0 for r in outlined)
+    assert all(r.visible_px == 0 for t in range(0, 24, 4) for r in seen.truth(t).rows)
+    assert not any(seen.truth(t).motion_mask.any() for t in range(0, 24, 4))
+
+
+def test_front_lit_targets_keep_most_of_their_outline_back_lit_ones_lose_most():
+    def kept(phase: float) -> float:
+        plan = _lit_plan(phase)
+        outline, seen = SequenceRenderer(plan), SequenceRenderer(plan, truth="seen")
+        total = sum(r.visible_px for t in range(0, 24, 3) for r in outline.truth(t).rows)
+        shown = sum(r.visible_px for t in range(0, 24, 3) for r in seen.truth(t).rows)
+        assert total > 200
+        return shown / total
+
+    front, back = kept(10.0), kept(170.0)
+    assert front > 0.9, f"front-lit targets keep {front:.2f} of their pixels"
+    assert back < 0.3, f"back-lit targets keep {back:.2f} of their pixels"
+
+
+def test_a_higher_snr_shows_fewer_pixels():
+    plan = _lit_plan(90.0)
+    counts = [
+        sum(r.visible_px for t in range(0, 24, 4) for r in SequenceRenderer(plan, "seen", snr).truth(t).rows)
+        for snr in (1.0, 3.0, 30.0)
+    ]
+    assert counts[0] >= counts[1] > counts[2], counts
+
+
+@pytest.mark.parametrize(
+    "kwargs,match", [({"truth": "lit"}, "truth='lit'"), ({"seen_snr": 0.0}, "seen_snr=0.0")]
+)
+def test_renderer_rejects_unknown_truth_settings(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        SequenceRenderer(_lit_plan(30.0), **kwargs)
+
+
+@pytest.mark.parametrize(
+    "override,match",
+    [("data.truth=outline", "data.truth='outline'"), ("data.seen_snr=-1", "data.seen_snr=-1")],
+)
+def test_build_data_rejects_unknown_truth_settings(tmp_path, override, match):
+    cfg = compose_config("build_data", [f"data_root={tmp_path}", override])
+    with pytest.raises(ValueError, match=match):
+        check_config(cfg)

@@ -96,6 +96,12 @@ def write_contact_sheet(
     write_image(path, sheet)
 
 
+_TRUTH_WORDS = {
+    "silhouette": "whole silhouette, lit or not (`data.truth=silhouette`)",
+    "seen": "pixels the camera shows above its noise (`data.truth=seen`)",
+}
+
+
 def card_markdown(manifest: dict, stats: dict) -> str:
     lines = [
         f"# Dataset card: {manifest['name']}",
@@ -107,6 +113,7 @@ def card_markdown(manifest: dict, stats: dict) -> str:
         f"{manifest['width']}x{manifest['height']} at {manifest['fps']} fps, {manifest['num_folds']} folds",
         f"- {stats['moving_targets']} moving targets, {stats['static_objects']} static objects",
         f"- classes: {', '.join(manifest['class_names'])}",
+        f"- truth boxes frame each object's {_TRUTH_WORDS[manifest['config']['data'].get('truth', 'silhouette')]}",
         f"- ground-truth rows of moving targets: {stats['gt_rows_moving']}, of which fully hidden: "
         f"{stats['gt_rows_hidden']}",
         f"- occlusion events (runs of frames a target is hidden by another object): "

@@ -3,6 +3,16 @@
 The truth comes from the same silhouettes that make the image: objects are composited far to near, an
 owner map records which object each pixel shows, and boxes, visibility and motion masks are read from
 it. Image-only effects (motion blur, optics, noise, stray light) never change the truth.
+
+Two truths are offered (`TRUTH_MODES`, the dataset's `truth` key):
+- "silhouette" (the default): every pixel of an object's silhouette counts, lit or not, so a target half
+  in its own shadow keeps the box of its whole outline.
+- "seen": only the pixels the camera can show count: an object pixel counts where its radiance, exposed
+  by the frame's gain, clears `seen_snr` times the sensor noise of the background under it (sky, stray
+  light, black level; before the optics' blur). A face turned from the sun (black, as `ambient` 0 leaves
+  it) is not seen, and a target with no seen pixel is hidden in that frame like an occluded one. This is
+  the box a person marking what the image shows would draw.
+Both come from the same plan and image: only the labels differ.
 """
 
 from __future__ import annotations
@@ -15,6 +25,8 @@ import numpy as np
 from spacetrack.data import optics
 from spacetrack.data.raster import Layer, render_mesh
 from spacetrack.data.scene import ObjectPlan, ScenePlan
+
+TRUTH_MODES = ("silhouette", "seen")
 
 
 @dataclass(frozen=True)
@@ -64,11 +76,21 @@ def _tight_box(pixels: np.ndarray, x_off: int, y_off: int) -> tuple[int, int, in
 
 
 def frame_truth(
-    objects: list[ObjectPlan], layers: list[Layer | None], t: int, width: int, height: int
+    objects: list[ObjectPlan],
+    layers: list[Layer | None],
+    t: int,
+    width: int,
+    height: int,
+    min_radiance: np.ndarray | None = None,
 ) -> FrameTruth:
-    """Boxes, visibility and the motion mask of frame `t` from the objects' layers."""
+    """Boxes, visibility and the motion mask of frame `t` from the objects' layers.
+
+    min_radiance: None (every silhouette pixel counts), or (height, width) float: an object pixel counts
+    only where the largest channel of its radiance reaches this ("seen" truth).
+    """
     order = sorted((k for k, lay in enumerate(layers) if lay is not None), key=lambda k: -layers[k].depth)
     owner = np.zeros((height, width), dtype=np.int16)
+    top = np.zeros((height, width), dtype=np.float32) if min_radiance is not None else None
     clips = {}
     for k in order:
         clip = _clip(layers[k], width, height)
@@ -76,7 +98,13 @@ def frame_truth(
             continue
         clips[k] = clip
         img_sl, lay_sl = clip
-        owner[img_sl][layers[k].mask[lay_sl]] = k + 1
+        mask = layers[k].mask[lay_sl]
+        owner[img_sl][mask] = k + 1
+        if top is not None:
+            top[img_sl][mask] = layers[k].radiance[lay_sl][mask].max(axis=-1)
+    outline = owner.copy() if min_radiance is not None else owner
+    if min_radiance is not None:
+        owner[top < min_radiance] = 0
     rows, moving_labels = [], []
     for k, (img_sl, lay_sl) in sorted(clips.items()):
         obj, layer = objects[k], layers[k]
@@ -97,7 +125,7 @@ def frame_truth(
                 h=box[3],
                 visibility=n_visible / layer.area,
                 visible_px=n_visible,
-                occluded_px=int(amodal.sum()) - n_visible,
+                occluded_px=int(amodal.sum()) - int((outline[img_sl] == k + 1).sum()),
             )
         )
         if not obj.static and obj.moving(t):
@@ -141,8 +169,12 @@ def _composite(radiance: np.ndarray, layer: Layer, velocity: np.ndarray, blur: f
 class SequenceRenderer:
     """Renders frame `t` of a plan: `render(t) -> (rgb uint8, FrameTruth)`, frames in any order."""
 
-    def __init__(self, plan: ScenePlan):
-        self.plan = plan
+    def __init__(self, plan: ScenePlan, truth: str = "silhouette", seen_snr: float = 3.0):
+        if truth not in TRUTH_MODES:
+            raise ValueError(f"truth={truth!r}: expected one of {', '.join(TRUTH_MODES)}")
+        if not seen_snr > 0:
+            raise ValueError(f"seen_snr={seen_snr}: expected a positive signal-to-noise ratio")
+        self.plan, self.truth_mode, self.seen_snr = plan, truth, float(seen_snr)
         cam, p = plan.camera, plan.params
         reach = np.abs(plan.slew) * plan.num_frames
         self.pad = (int(np.ceil(reach[0])) + 2, int(np.ceil(reach[1])) + 2) if reach.any() else (0, 0)
@@ -191,10 +223,31 @@ class SequenceRenderer:
             )
         return out
 
+    def background(self, t: int) -> np.ndarray:
+        """Radiance (H, W, 3) of frame `t` without the objects: the shifted sky plus stray light."""
+        cam = self.plan.camera
+        radiance = optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
+        if self.stray is not None:
+            radiance = radiance + self.stray
+        return radiance
+
+    def min_seen_radiance(self, t: int) -> np.ndarray:
+        """(H, W) radiance an object pixel needs in frame `t` to be seen: `seen_snr` times the noise the
+        sensor adds over the background there, in radiance units of this frame's gain."""
+        p, gain = self.plan.params, float(self.plan.exposure[t])
+        background_dn = np.clip(self.background(t).max(axis=-1) * gain, 0.0, 2.0) * 255.0 + p.black_level_dn
+        noise_dn = np.sqrt(background_dn * p.shot_noise**2 + p.read_noise_dn**2)
+        return (self.seen_snr * noise_dn / (255.0 * gain)).astype(np.float32)
+
     def truth(self, t: int, layers: list[Layer | None] | None = None) -> FrameTruth:
         cam = self.plan.camera
         return frame_truth(
-            self.plan.objects, self.layers(t) if layers is None else layers, t, cam.width, cam.height
+            self.plan.objects,
+            self.layers(t) if layers is None else layers,
+            t,
+            cam.width,
+            cam.height,
+            self.min_seen_radiance(t) if self.truth_mode == "seen" else None,
         )
 
     def render(self, t: int) -> tuple[np.ndarray, FrameTruth]:

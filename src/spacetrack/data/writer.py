@@ -51,13 +51,16 @@ def write_sequence(
     label_min_pixels: int,
     enhancers: list[tuple[str, Enhancer]] = (),
     progress: Callable[[int], None] | None = None,
+    truth: str = "silhouette",
+    seen_snr: float = 3.0,
 ) -> list[dict]:
-    """Render every frame of `plan` into `seq_dir` and return the per-target truth records for statistics."""
+    """Render every frame of `plan` into `seq_dir` and return the per-target truth records for statistics.
+    `truth` and `seen_snr`: which pixels of an object its labels count (see `spacetrack.data.render`)."""
     cam = plan.camera
     folders = ["img", "gt", "labels", "masks"] + [f"img_{name}" for name, _ in enhancers]
     for folder in folders:
         (seq_dir / folder).mkdir(parents=True)
-    renderer = SequenceRenderer(plan)
+    renderer = SequenceRenderer(plan, truth=truth, seen_snr=seen_snr)
     moving_lines, static_lines, records = [], [], []
     for t in range(plan.num_frames):
         frame = t + 1
