@@ -100,20 +100,18 @@ PRETRAIN_DATA := data/space_pretrain
 $(PRETRAIN_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data data=pretrain seed=1000
 
-pretrain: $(STAMP) $(PRETRAIN_DATA)/manifest.json ## pretrain YOLOv5s and YOLOv5s+GAM (DWT/HSV) side by side, one core each (GPUS=N: in turn on N GPUs) -> weights/*_pretrained.pt; resumable
+# YOLOv5s + GAM starts from the plain pretrained file: every tensor but the GAM block's
+GAM_PRETRAIN := model=yolov5s_gam enhance=dwt_hsv weights=weights/yolov5s_pretrained.pt weights_partial=true
+
+pretrain: $(STAMP) $(PRETRAIN_DATA)/manifest.json ## pretrain YOLOv5s, then YOLOv5s+GAM (DWT/HSV) from it (GPUS=N: on N GPUs) -> weights/*_pretrained.pt; resumable
 	@mkdir -p outputs/pretrain
 ifneq ($(GPUS),)
 	$(call gpu_check,train.trainer.device)
 	$(TORCHRUN) -m spacetrack.pretrain hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s $(ARGS)
-	$(TORCHRUN) -m spacetrack.pretrain model=yolov5s_gam enhance=dwt_hsv \
-		hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s_gam $(ARGS)
+	$(TORCHRUN) -m spacetrack.pretrain $(GAM_PRETRAIN) hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s_gam $(ARGS)
 else
-	$(PY) -m spacetrack.pretrain train.threads=1 $(ARGS) > outputs/pretrain/yolov5s.log 2>&1 & plain=$$!; \
-	$(PY) -m spacetrack.pretrain model=yolov5s_gam enhance=dwt_hsv train.threads=1 $(ARGS) \
-		> outputs/pretrain/yolov5s_gam.log 2>&1 & gam=$$!; \
-	echo "pretraining both models; progress in outputs/pretrain/yolov5s.log and yolov5s_gam.log"; \
-	wait $$plain; a=$$?; wait $$gam; b=$$?; tail -n 2 outputs/pretrain/yolov5s.log outputs/pretrain/yolov5s_gam.log; \
-	test $$a -eq 0 -a $$b -eq 0
+	$(PY) -m spacetrack.pretrain hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s $(ARGS)
+	$(PY) -m spacetrack.pretrain $(GAM_PRETRAIN) hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s_gam $(ARGS)
 endif
 
 detector-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## per-fold detector results, plain and improved, per scenario -> experiments/detector_cv (FOLDS="3 4")
