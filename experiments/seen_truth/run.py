@@ -1,0 +1,251 @@
+"""Silhouette truth against seen truth: how much of the detector's shortfall is boxes the image does not show.
+
+The default dataset labels each target with the box of its whole silhouette, lit or not; a target in
+its own shadow is black on black there (`ambient` 0), yet its truth box still frames the dark part.
+`data.truth=seen` renders the same frames (same seed, identical images) with boxes of only the pixels
+the camera shows above its noise. This script compares the two:
+
+1. `labels.json`: per scenario and sequence, how many silhouette boxes the seen truth shrinks below half
+   their area (IoU < 0.5: a detector framing what it sees cannot match them) or hides altogether.
+2. `results/<truth>_fold<k>.json`: each fold's detector (`<detectors>/yolov5s_fold<k>/weights/best.pt`,
+   trained on the silhouette or the seen truth, as its recorded settings say) scored against both
+   truths exactly as `experiments/detector_cv/` scores it (every 2nd validation frame at 640x480:
+   mAP@0.5, mAP@0.5:0.95, recall at score >= 0.5, overall and per scenario), and tracked against both
+   with Table 4's `yolo_deepsort_paper` and `gt_deepsort_paper` rows.
+
+    python -m spacetrack.build_data data.name=space_default_seen data.truth=seen
+    python experiments/seen_truth/run.py --folds 0 2 3 6 7 \\
+        --detectors outputs/detector_cv/longer_pretraining              # trained on the silhouettes
+    python experiments/detector_cv/run.py --folds 7 --variants yolov5s \\
+        --out experiments/detector_cv/seen_truth -- data.name=space_default_seen   # make train on seen
+    python experiments/seen_truth/run.py --folds 7 --detectors outputs/detector_cv/seen_truth
+
+Each fold's piece is written as it finishes; `results.md` is rebuilt from every piece present.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from torchvision.ops import box_iou
+
+from spacetrack import track
+from spacetrack.config import REPO_ROOT, compose_config
+from spacetrack.data.layout import load_manifest, read_mot
+from spacetrack.io import atomic_write_text
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(REPO_ROOT / "experiments" / "detector_cv"))
+import run as detector_cv  # noqa: E402  (experiments/detector_cv/run.py)
+
+TRUTHS = {"silhouette": "space_default", "seen": "space_default_seen"}
+ROWS = ("yolo_deepsort_paper", "gt_deepsort_paper")
+SHRUNK_IOU = 0.5
+
+
+def _table4_rows() -> dict:
+    """Table 4's row settings (experiments/table4_mota/run.py), loaded under another module name."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("table4_run", REPO_ROOT / "experiments/table4_mota/run.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.ROWS
+
+
+def label_statistics(data_root: Path) -> dict:
+    """Per scenario and per sequence: the silhouette truth's shown target boxes, and the share of them the
+    seen truth hides or shrinks below IoU 0.5 (moving targets, every frame)."""
+    silhouette, seen = (data_root / name for name in TRUTHS.values())
+    manifest = load_manifest(silhouette)
+    counts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    per_sequence = {}
+    for seq in manifest["sequences"]:
+        a = read_mot(silhouette / seq["name"] / "gt" / "gt.txt")
+        b = read_mot(seen / seq["name"] / "gt" / "gt.txt")
+        if a.shape != b.shape or not np.array_equal(a[:, :2], b[:, :2]):
+            raise ValueError(
+                f"{seq['name']}: the two truths list other (frame, id) rows; render both from one seed"
+            )
+        shown = a[:, 6] > 0
+        hidden = shown & (b[:, 6] == 0)
+        iou = box_iou(_xyxy(a), _xyxy(b)).diagonal().numpy()
+        shrunk = shown & ~hidden & (iou < SHRUNK_IOU)
+        row = {"boxes": int(shown.sum()), "hidden": int(hidden.sum()), "shrunk": int(shrunk.sum())}
+        per_sequence[seq["name"]] = row | {"scenario": seq["scenario"], "fold": seq["fold"]}
+        for key in (seq["scenario"], "all"):
+            for k, v in row.items():
+                counts[key][k] += v
+    return {
+        "scenarios": {
+            k: dict(v) | {"lost_share": (v["hidden"] + v["shrunk"]) / v["boxes"]} for k, v in counts.items()
+        },
+        "sequences": per_sequence,
+    }
+
+
+def _xyxy(rows: np.ndarray):
+    import torch
+
+    box = torch.as_tensor(rows[:, 2:6], dtype=torch.float32)
+    return torch.cat([box[:, :2], box[:, :2] + box[:, 2:]], dim=1)
+
+
+def trained_on(weights: Path) -> str:
+    """Which truth `weights` was trained on, from the dataset named in its recorded settings."""
+    import torch
+
+    data = torch.load(weights, map_location="cpu", weights_only=False)["settings"]["data"]["name"]
+    for truth, name in TRUTHS.items():
+        if data == name:
+            return truth
+    raise ValueError(f"{weights}: trained on data.name={data!r}, expected one of {list(TRUTHS.values())}")
+
+
+def fold_piece(fold: int, weights: Path) -> dict:
+    """One fold's detector scored and tracked against both truths."""
+    rows = _table4_rows()
+    out = {"fold": fold, "weights": str(weights), "trained_on": trained_on(weights), "detection": {}}
+    out["tracking"] = {}
+    for truth, name in TRUTHS.items():
+        cfg = compose_config("train", ["model=yolov5s", "enhance=none", f"fold={fold}", f"data.name={name}"])
+        out["detection"][truth] = detector_cv.score(cfg, weights, frame_stride=2)
+        out["tracking"][truth] = {}
+        for row in ROWS:
+            detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
+            overrides = (
+                rows[row][1]
+                + detector
+                + [
+                    "reid.weights=weights/reid_fold3.pt",
+                    f"fold={fold}",
+                    f"data.name={name}",
+                    f"output_dir=outputs/seen_truth/{truth}/{row}/fold{fold}",
+                    "video=false",
+                    "progress=false",
+                    "logger.experiment=seen_truth",
+                ]
+            )
+            start = time.time()
+            metrics = track.run(compose_config("track", overrides))
+            out["tracking"][truth][row] = {
+                "metrics": {
+                    k: metrics[k] for k in ("mota", "hota", "idf1", "idsw", "fp", "fn") if k in metrics
+                },
+                "command": "python -m spacetrack.track " + " ".join(overrides),
+                "seconds": round(time.time() - start, 1),
+            }
+    return out
+
+
+def write_table() -> Path:
+    found = [json.loads(p.read_text()) for p in sorted((HERE / "results").glob("*_fold*.json"))]
+    labels = json.loads((HERE / "labels.json").read_text())
+    lines = [
+        "# Silhouette truth against seen truth",
+        "",
+        "Generated by `experiments/seen_truth/run.py`; see README.md.",
+        "",
+        "## Labels: silhouette boxes the seen truth hides or shrinks below IoU 0.5 (moving targets, every frame)",
+        "",
+        "| scenario | boxes | hidden | shrunk | lost share |",
+        "|---|---|---|---|---|",
+    ]
+    for name, v in sorted(labels["scenarios"].items(), key=lambda kv: (kv[0] == "all", kv[0])):
+        lines.append(f"| {name} | {v['boxes']} | {v['hidden']} | {v['shrunk']} | {v['lost_share']:.3f} |")
+    for trained in TRUTHS:
+        pieces = [p for p in found if p["trained_on"] == trained]
+        if pieces:
+            lines += _sections(trained, pieces)
+    path = HERE / "results.md"
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return path
+
+
+def _cell(piece: dict, group: str) -> str:
+    a, b = (piece["detection"][t].get(group) for t in TRUTHS)
+    if a is None:
+        return "-"
+    return " -> ".join(f"{d['map50']:.3f} / {d['map50_95']:.3f} / {d['recall_at_score']:.3f}" for d in (a, b))
+
+
+def _sections(trained: str, pieces: list[dict]) -> list[str]:
+    """The detection and tracking tables of the detectors trained on one truth."""
+    lines = [
+        "",
+        f"## Detectors trained on the {trained} truth",
+        "",
+        "Detection: mAP@0.5 / mAP@0.5:0.95 / recall at score >= 0.5, scored against the silhouette truth ->",
+        "the seen truth; any class: mAP@0.5 with every class as one.",
+        "",
+        "| fold | all | all, any class | dim | strong light |",
+        "|---|---|---|---|---|",
+    ]
+    for p in pieces:
+        a, b = (p["detection"][t]["all"]["map50_any"] for t in TRUTHS)
+        lines.append(
+            f"| {p['fold']} | {_cell(p, 'all')} | {a:.3f} -> {b:.3f} | {_cell(p, 'dim')} "
+            f"| {_cell(p, 'strong_light')} |"
+        )
+    means = {t: np.mean([p["detection"][t]["all"]["map50"] for p in pieces]) for t in TRUTHS}
+    lines += [
+        f"| mean mAP@0.5 | {means['silhouette']:.3f} -> {means['seen']:.3f} | | | |",
+        "",
+        "Tracking: MOTA % with Table 4's row settings, silhouette -> seen truth.",
+        "",
+        "| fold | " + " | ".join(ROWS) + " |",
+        "|---|" + "---|" * len(ROWS),
+    ]
+    for p in pieces:
+        cells = [
+            " -> ".join(f"{100 * p['tracking'][t][row]['metrics']['mota']:.1f}" for t in TRUTHS)
+            for row in ROWS
+        ]
+        lines.append(f"| {p['fold']} | " + " | ".join(cells) + " |")
+    cells = [
+        " -> ".join(
+            f"{100 * np.mean([p['tracking'][t][row]['metrics']['mota'] for p in pieces]):.1f}" for t in TRUTHS
+        )
+        for row in ROWS
+    ]
+    return lines + ["| mean | " + " | ".join(cells) + " |"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--folds", type=int, nargs="+", default=[3])
+    parser.add_argument("--detectors", type=Path, default=Path("outputs/detector_cv/longer_pretraining"),
+                        help="folder holding yolov5s_fold<k>/weights/best.pt")  # fmt: skip
+    parser.add_argument("--data-root", type=Path, default=Path("data"))
+    args = parser.parse_args()
+    for name in TRUTHS.values():
+        if not (args.data_root / name / "manifest.json").is_file():
+            raise SystemExit(f"{args.data_root / name} is missing: render it first (see this script's help)")
+    labels = label_statistics(args.data_root)
+    atomic_write_text(HERE / "labels.json", json.dumps(labels, indent=1) + "\n")
+    (HERE / "results").mkdir(exist_ok=True)
+    for fold in args.folds:
+        weights = args.detectors / f"yolov5s_fold{fold}" / "weights" / "best.pt"
+        if not weights.is_file():
+            raise SystemExit(
+                f"{weights} is missing: train fold {fold} first (experiments/detector_cv/run.py)"
+            )
+        piece = fold_piece(fold, weights)
+        name = f"{piece['trained_on']}_fold{fold}.json"
+        atomic_write_text(HERE / "results" / name, json.dumps(piece, indent=1) + "\n")
+        print(
+            f"fold {fold}:", {t: round(piece["detection"][t]["all"]["map50"], 3) for t in TRUTHS}, flush=True
+        )
+    print(write_table().read_text())
+
+
+if __name__ == "__main__":
+    main()
