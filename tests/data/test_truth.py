@@ -174,25 +174,33 @@ def test_seen_boxes_frame_the_visible_pixels_that_clear_the_noise():
     seen, outline = SequenceRenderer(plan, truth="seen"), SequenceRenderer(plan)
     checked = shrunk = 0
     for t in range(0, 48, 6):
-        floor = seen.min_seen_radiance(t)
+        sky, floor = seen.seen_reference(t)
         layers = seen.layers(t)
-        radiance = {}
+        painted = {}  # per object: its radiance where its silhouette lies in the frame (NaN elsewhere)
         for obj, layer in zip(plan.objects, layers, strict=True):
             if layer is None:
                 continue
-            canvas = np.full((CAMERA.height, CAMERA.width), -1.0, dtype=np.float32)
+            canvas = np.full((CAMERA.height, CAMERA.width, 3), np.nan, dtype=np.float32)
             ys, xs = np.nonzero(layer.mask)
             keep = (ys + layer.y0 >= 0) & (ys + layer.y0 < CAMERA.height)
             keep &= (xs + layer.x0 >= 0) & (xs + layer.x0 < CAMERA.width)
-            canvas[ys[keep] + layer.y0, xs[keep] + layer.x0] = layer.radiance[ys[keep], xs[keep]].max(axis=1)
-            radiance[obj.id] = canvas
+            canvas[ys[keep] + layer.y0, xs[keep] + layer.x0] = layer.radiance[ys[keep], xs[keep]]
+            painted[obj.id] = (canvas, layer.depth)
+        radiance = {}
+        for oid, (canvas, depth) in painted.items():
+            behind = sky.copy()  # the sky, then every farther object over it, farthest first
+            for c, d in sorted(painted.values(), key=lambda v: -v[1]):
+                if d > depth:
+                    behind = np.where(np.isnan(c), behind, c)
+            contrast = np.abs(np.nan_to_num(canvas, nan=0.0) - behind).max(axis=-1)
+            radiance[oid] = np.where(np.isnan(canvas[..., 0]), -1.0, contrast)
         rows = {r.id: r for r in seen.truth(t).rows}
         whole = {r.id: r for r in outline.truth(t).rows}
         assert set(rows) == set(whole)
         for oid, (visible, amodal, area) in visible_pixels(seen, t).items():
             if oid not in rows:
                 continue
-            shown = visible & (radiance[oid] >= floor)
+            shown = visible & (radiance[oid] >= floor)  # contrast with what lies behind
             row = rows[oid]
             assert row.visible_px == int(shown.sum())
             assert row.visibility == pytest.approx(shown.sum() / area)
@@ -219,6 +227,15 @@ def test_an_unlit_target_is_hidden_in_seen_truth_but_keeps_its_outline():
     assert outlined and all(r.visible_px > 0 for r in outlined)
     assert all(r.visible_px == 0 for t in range(0, 24, 4) for r in seen.truth(t).rows)
     assert not any(seen.truth(t).motion_mask.any() for t in range(0, 24, 4))
+
+
+def test_an_unlit_target_against_a_bright_background_is_seen_whole():
+    plan = _lit_plan(60.0, sun=0.0)
+    outline, seen = SequenceRenderer(plan), SequenceRenderer(plan, truth="seen")
+    seen.sky = np.full_like(seen.sky, 0.5)  # a lit planet filling the field behind the black targets
+    for t in range(0, 24, 4):
+        whole = [(r.id, r.visible_px, r.x, r.y, r.w, r.h) for r in outline.truth(t).rows]
+        assert [(r.id, r.visible_px, r.x, r.y, r.w, r.h) for r in seen.truth(t).rows] == whole
 
 
 def test_front_lit_targets_keep_most_of_their_outline_back_lit_ones_lose_most():

@@ -7,11 +7,13 @@ it. Image-only effects (motion blur, optics, noise, stray light) never change th
 Two truths are offered (`TRUTH_MODES`, the dataset's `truth` key):
 - "silhouette" (the default): every pixel of an object's silhouette counts, lit or not, so a target half
   in its own shadow keeps the box of its whole outline.
-- "seen": only the pixels the camera can show count: an object pixel counts where its radiance, exposed
-  by the frame's gain, clears `seen_snr` times the sensor noise of the background under it (sky, stray
-  light, black level; before the optics' blur). A face turned from the sun (black, as `ambient` 0 leaves
-  it) is not seen, and a target with no seen pixel is hidden in that frame like an occluded one. This is
-  the box a person marking what the image shows would draw.
+- "seen": only the pixels the camera can show count: an object pixel counts where it differs from what
+  lies behind it (the sky without its stars, or a farther object), in some colour channel and exposed by the frame's gain,
+  by at least `seen_snr` times the sensor noise there (sky, stray light, black level; before the
+  optics' blur). A face turned from the sun (black, as `ambient` 0 leaves it) is not seen against black
+  space but is seen against a lit planet or a lit target behind it; a target with no seen pixel is
+  hidden in that frame like an occluded one. This is the box a person marking what the image shows
+  would draw.
 Both come from the same plan and image: only the labels differ.
 """
 
@@ -81,16 +83,20 @@ def frame_truth(
     t: int,
     width: int,
     height: int,
-    min_radiance: np.ndarray | None = None,
+    seen: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> FrameTruth:
     """Boxes, visibility and the motion mask of frame `t` from the objects' layers.
 
-    min_radiance: None (every silhouette pixel counts), or (height, width) float: an object pixel counts
-    only where the largest channel of its radiance reaches this ("seen" truth).
+    seen: None (every silhouette pixel counts), or (sky, min_contrast): the radiance (height, width, 3)
+    behind every object and the (height, width) contrast an object pixel needs: it counts only where
+    some channel of its radiance differs from what lies behind it (the sky, or the farther objects
+    painted there) by at least that much ("seen" truth).
     """
     order = sorted((k for k, lay in enumerate(layers) if lay is not None), key=lambda k: -layers[k].depth)
     owner = np.zeros((height, width), dtype=np.int16)
-    top = np.zeros((height, width), dtype=np.float32) if min_radiance is not None else None
+    if seen is not None:
+        behind, min_contrast = seen[0].copy(), seen[1]
+        shown = np.zeros((height, width), dtype=bool)
     clips = {}
     for k in order:
         clip = _clip(layers[k], width, height)
@@ -100,11 +106,14 @@ def frame_truth(
         img_sl, lay_sl = clip
         mask = layers[k].mask[lay_sl]
         owner[img_sl][mask] = k + 1
-        if top is not None:
-            top[img_sl][mask] = layers[k].radiance[lay_sl][mask].max(axis=-1)
-    outline = owner.copy() if min_radiance is not None else owner
-    if min_radiance is not None:
-        owner[top < min_radiance] = 0
+        if seen is not None:
+            colour = layers[k].radiance[lay_sl][mask]
+            contrast = np.abs(colour - behind[img_sl][mask]).max(axis=-1)
+            shown[img_sl][mask] = contrast >= min_contrast[img_sl][mask]
+            behind[img_sl][mask] = colour
+    outline = owner.copy() if seen is not None else owner
+    if seen is not None:
+        owner[~shown] = 0
     rows, moving_labels = [], []
     for k, (img_sl, lay_sl) in sorted(clips.items()):
         obj, layer = objects[k], layers[k]
@@ -231,13 +240,22 @@ class SequenceRenderer:
             radiance = radiance + self.stray
         return radiance
 
-    def min_seen_radiance(self, t: int) -> np.ndarray:
-        """(H, W) radiance an object pixel needs in frame `t` to be seen: `seen_snr` times the noise the
-        sensor adds over the background there, in radiance units of this frame's gain."""
+    def min_seen_contrast(self, t: int) -> np.ndarray:
+        """(H, W) radiance difference from what lies behind an object pixel in frame `t` for it to be
+        seen: `seen_snr` times the noise the sensor adds over the background there, in radiance units of
+        this frame's gain."""
         p, gain = self.plan.params, float(self.plan.exposure[t])
         background_dn = np.clip(self.background(t).max(axis=-1) * gain, 0.0, 2.0) * 255.0 + p.black_level_dn
         noise_dn = np.sqrt(background_dn * p.shot_noise**2 + p.read_noise_dn**2)
         return (self.seen_snr * noise_dn / (255.0 * gain)).astype(np.float32)
+
+    def seen_reference(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """(sky radiance (H, W, 3) behind the objects in frame `t`, `min_seen_contrast(t)`): what the
+        "seen" truth compares each object pixel with. The sky is median-filtered over 5x5 pixels, which
+        takes out the stars: a black target hiding a star is not thereby seen, one crossing a planet is."""
+        cam = self.plan.camera
+        sky = optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
+        return cv2.medianBlur(np.ascontiguousarray(sky, dtype=np.float32), 5), self.min_seen_contrast(t)
 
     def truth(self, t: int, layers: list[Layer | None] | None = None) -> FrameTruth:
         cam = self.plan.camera
@@ -247,7 +265,7 @@ class SequenceRenderer:
             t,
             cam.width,
             cam.height,
-            self.min_seen_radiance(t) if self.truth_mode == "seen" else None,
+            self.seen_reference(t) if self.truth_mode == "seen" else None,
         )
 
     def render(self, t: int) -> tuple[np.ndarray, FrameTruth]:
