@@ -98,7 +98,7 @@ def write_contact_sheet(
 
 _TRUTH_WORDS = {
     "silhouette": "whole silhouette, lit or not (`data.truth=silhouette`)",
-    "seen": "pixels the camera shows above its noise (`data.truth=seen`)",
+    "seen": "pixels the camera shows: those standing out from what lies behind them (`data.truth=seen`)",
 }
 
 
