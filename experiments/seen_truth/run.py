@@ -26,6 +26,8 @@ Each fold's piece is written as it finishes; `results.md` is rebuilt from every 
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib.util
 import json
 import sys
 import time
@@ -33,6 +35,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+import torch
 from torchvision.ops import box_iou
 
 from spacetrack import track
@@ -49,10 +52,9 @@ ROWS = ("yolo_deepsort_paper", "gt_deepsort_paper")
 SHRUNK_IOU = 0.5
 
 
+@functools.cache
 def _table4_rows() -> dict:
-    """Table 4's row settings (experiments/table4_mota/run.py), loaded under another module name."""
-    import importlib.util
-
+    """Table 4's row settings (experiments/table4_mota/run.py), loaded once under another module name."""
     spec = importlib.util.spec_from_file_location("table4_run", REPO_ROOT / "experiments/table4_mota/run.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -90,17 +92,13 @@ def label_statistics(data_root: Path) -> dict:
     }
 
 
-def _xyxy(rows: np.ndarray):
-    import torch
-
+def _xyxy(rows: np.ndarray) -> torch.Tensor:
     box = torch.as_tensor(rows[:, 2:6], dtype=torch.float32)
     return torch.cat([box[:, :2], box[:, :2] + box[:, 2:]], dim=1)
 
 
 def trained_on(weights: Path) -> str:
     """Which truth `weights` was trained on, from the dataset named in its recorded settings."""
-    import torch
-
     data = torch.load(weights, map_location="cpu", weights_only=False)["settings"]["data"]["name"]
     for truth, name in TRUTHS.items():
         if data == name:

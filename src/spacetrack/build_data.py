@@ -30,7 +30,7 @@ from spacetrack.data.folds import assign_folds
 from spacetrack.data.geometry import CLASS_NAMES
 from spacetrack.data.layout import FORMAT_VERSION, MANIFEST
 from spacetrack.data.raster import Camera
-from spacetrack.data.render import TRUTH_MODES, SequenceRenderer, longest_hidden_run
+from spacetrack.data.render import SequenceRenderer, check_truth, longest_hidden_run
 from spacetrack.data.scenario import ScenarioParams, scenario_params
 from spacetrack.data.scene import ScenePlan, plan_sequence
 from spacetrack.data.writer import write_sequence
@@ -57,10 +57,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"data.image_ext={d.image_ext!r}: expected 'jpg' or 'png'")
     if not d.get("scenario"):
         raise ValueError("no scenario selected: choose some with 'data/scenario=[nominal,dim]'")
-    if d.truth not in TRUTH_MODES:
-        raise ValueError(f"data.truth={d.truth!r}: expected one of {', '.join(TRUTH_MODES)}")
-    if not d.seen_snr > 0:
-        raise ValueError(f"data.seen_snr={d.seen_snr}: expected a positive signal-to-noise ratio")
+    check_truth(d.truth, d.seen_snr, prefix="data.")
     if not 0 < d.hfov_deg < 170:
         raise ValueError(f"data.hfov_deg={d.hfov_deg}: expected a field of view in (0, 170) degrees")
     root = Path(cfg.dataset_dir).parent

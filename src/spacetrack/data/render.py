@@ -9,8 +9,8 @@ Two truths are offered (`TRUTH_MODES`, the dataset's `truth` key):
   in its own shadow keeps the box of its whole outline.
 - "seen": only the pixels the camera can show count: an object pixel counts where it differs from what
   lies behind it (the sky without its stars, or a farther object), in some colour channel and exposed
-  by the frame's gain, by at least `seen_snr` times the sensor noise there (sky, stray light, black level; before the
-  optics' blur). A face turned from the sun (black, as `ambient` 0 leaves it) is not seen against black
+  by the frame's gain, by at least `seen_snr` times the sensor noise there (sky, stray light, black
+  level; before the optics' blur). A face turned from the sun (black, as `ambient` 0 leaves it) is not seen against black
   space but is seen against a lit planet or a lit target behind it; a target with no seen pixel is
   hidden in that frame like an occluded one. This is the box a person marking what the image shows
   would draw.
@@ -29,6 +29,14 @@ from spacetrack.data.raster import Layer, render_mesh
 from spacetrack.data.scene import ObjectPlan, ScenePlan
 
 TRUTH_MODES = ("silhouette", "seen")
+
+
+def check_truth(truth: str, seen_snr: float, prefix: str = "") -> None:
+    """Refuse a truth mode or seen_snr the renderer cannot use; `prefix` names their config section."""
+    if truth not in TRUTH_MODES:
+        raise ValueError(f"{prefix}truth={truth!r}: expected one of {', '.join(TRUTH_MODES)}")
+    if not seen_snr > 0:
+        raise ValueError(f"{prefix}seen_snr={seen_snr}: expected a positive signal-to-noise ratio")
 
 
 @dataclass(frozen=True)
@@ -179,10 +187,7 @@ class SequenceRenderer:
     """Renders frame `t` of a plan: `render(t) -> (rgb uint8, FrameTruth)`, frames in any order."""
 
     def __init__(self, plan: ScenePlan, truth: str = "silhouette", seen_snr: float = 3.0):
-        if truth not in TRUTH_MODES:
-            raise ValueError(f"truth={truth!r}: expected one of {', '.join(TRUTH_MODES)}")
-        if not seen_snr > 0:
-            raise ValueError(f"seen_snr={seen_snr}: expected a positive signal-to-noise ratio")
+        check_truth(truth, seen_snr)
         self.plan, self.truth_mode, self.seen_snr = plan, truth, float(seen_snr)
         cam, p = plan.camera, plan.params
         reach = np.abs(plan.slew) * plan.num_frames
@@ -232,30 +237,24 @@ class SequenceRenderer:
             )
         return out
 
-    def background(self, t: int) -> np.ndarray:
-        """Radiance (H, W, 3) of frame `t` without the objects: the shifted sky plus stray light."""
+    def _sky(self, t: int) -> np.ndarray:
+        """Radiance (H, W, 3) of the sky in frame `t`, shifted by the camera's slew."""
         cam = self.plan.camera
-        radiance = optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
-        if self.stray is not None:
-            radiance = radiance + self.stray
-        return radiance
-
-    def min_seen_contrast(self, t: int) -> np.ndarray:
-        """(H, W) radiance difference from what lies behind an object pixel in frame `t` for it to be
-        seen: `seen_snr` times the noise the sensor adds over the background there, in radiance units of
-        this frame's gain."""
-        p, gain = self.plan.params, float(self.plan.exposure[t])
-        background_dn = np.clip(self.background(t).max(axis=-1) * gain, 0.0, 2.0) * 255.0 + p.black_level_dn
-        noise_dn = np.sqrt(background_dn * p.shot_noise**2 + p.read_noise_dn**2)
-        return (self.seen_snr * noise_dn / (255.0 * gain)).astype(np.float32)
+        return optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
 
     def seen_reference(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """(sky radiance (H, W, 3) behind the objects in frame `t`, `min_seen_contrast(t)`): what the
-        "seen" truth compares each object pixel with. The sky is median-filtered over 5x5 pixels, which
-        takes out the stars: a black target hiding a star is not thereby seen, one crossing a planet is."""
-        cam = self.plan.camera
-        sky = optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
-        return cv2.medianBlur(np.ascontiguousarray(sky, dtype=np.float32), 5), self.min_seen_contrast(t)
+        """What the "seen" truth compares each object pixel of frame `t` with: (the sky radiance (H, W, 3)
+        behind the objects, median-filtered over 5x5 pixels, which takes out the stars: a black target
+        hiding a star is not thereby seen, one crossing a planet is; the (H, W) contrast a pixel needs:
+        `seen_snr` times the noise the sensor adds over the background there, sky and stray light, in
+        radiance units of this frame's gain)."""
+        p, gain = self.plan.params, float(self.plan.exposure[t])
+        sky = self._sky(t)
+        background = sky if self.stray is None else sky + self.stray
+        background_dn = np.clip(background.max(axis=-1) * gain, 0.0, 2.0) * 255.0 + p.black_level_dn
+        noise_dn = np.sqrt(background_dn * p.shot_noise**2 + p.read_noise_dn**2)
+        min_contrast = (self.seen_snr * noise_dn / (255.0 * gain)).astype(np.float32)
+        return cv2.medianBlur(np.ascontiguousarray(sky, dtype=np.float32), 5), min_contrast
 
     def truth(self, t: int, layers: list[Layer | None] | None = None) -> FrameTruth:
         cam = self.plan.camera
@@ -269,9 +268,9 @@ class SequenceRenderer:
         )
 
     def render(self, t: int) -> tuple[np.ndarray, FrameTruth]:
-        plan, p, cam = self.plan, self.plan.params, self.plan.camera
+        plan, p = self.plan, self.plan.params
         layers = self.layers(t)
-        radiance = optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
+        radiance = self._sky(t)
         for k in sorted(
             (k for k, lay in enumerate(layers) if lay is not None), key=lambda k: -layers[k].depth
         ):
