@@ -169,7 +169,7 @@ def test_the_cache_key_tells_int8_from_float_and_its_calibration(weights, tmp_pa
         cfg = compose_config("track", [f"detector.weights={weights}", f"reid.weights={reid}", "logger=none",
                                        "detector.device=cpu", *overrides])  # fmt: skip
         return cache_key(
-            cfg, resolve_weights(cfg), SimpleNamespace(description="seq", num_frames=10)
+            cfg, resolve_weights(cfg), SimpleNamespace(name="seq", description="seq", num_frames=10, files=())
         ).detector
 
     auto, ort = key(), key("detector.backend=onnxruntime")

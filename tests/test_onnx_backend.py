@@ -167,7 +167,7 @@ def test_track_config_builds_onnxruntime_networks_and_keys_the_cache_on_the_back
         base = [f"detector.weights={tiny_yolo}", f"reid.weights={reid}", "logger=none"]
         return compose_config("track", base + list(overrides))
 
-    source = SimpleNamespace(description="seq", num_frames=10)
+    source = SimpleNamespace(name="seq", description="seq", num_frames=10, files=())
 
     def key(cfg):
         return cache_key(cfg, resolve_weights(cfg), source)

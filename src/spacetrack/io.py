@@ -6,7 +6,7 @@ import hashlib
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -77,6 +77,23 @@ def file_hash(path: str | Path) -> str:
     """`sha256:<first 16 hex digits>` of a file's bytes: names a weights file whatever its path."""
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
     return f"sha256:{digest[:16]}"
+
+
+def files_hash(paths: Iterable[str | Path]) -> str:
+    """`sha256:<first 16 hex digits>` of the names and bytes of `paths` in order (each file read in 1 MiB
+    blocks): what a sequence of frames, or a set of truth files, holds, whatever folder it lies in. A file
+    that does not exist adds its name and a marker, so that creating it changes the hash."""
+    digest = hashlib.sha256()
+    for path in paths:
+        path = Path(path)
+        if not path.is_file():
+            digest.update(f"{path.name}\0missing\0".encode())
+            continue
+        digest.update(f"{path.name}\0{path.stat().st_size}\0".encode())
+        with path.open("rb") as handle:
+            while block := handle.read(1 << 20):
+                digest.update(block)
+    return f"sha256:{digest.hexdigest()[:16]}"
 
 
 def load_torch_file(path: str | Path, what: str, *, mmap: bool = False) -> object:

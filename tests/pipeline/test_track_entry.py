@@ -4,6 +4,7 @@ boxes standing in for the detector: outputs, the motion filter, the cache, and t
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -87,13 +88,42 @@ def test_stale_cache_is_refused_or_rebuilt(smoke_dataset, tmp_path):
     before = meta.read_text()
     changed = [*common, "detector.score=0.9"]
     with pytest.raises(
-        CacheMismatchError, match=r"detector: cached '\w+', configured '\w+'.*cache.rebuild=true"
+        CacheMismatchError, match=r"detector: cached '[^']+', configured '[^']+'.*cache.rebuild=true"
     ):
         track.run(track_config(smoke_dataset, tmp_path, *changed, "cache.rebuild=false"))
     assert meta.read_text() == before
     rebuilt = track.run(track_config(smoke_dataset, tmp_path, *changed))
     assert rebuilt["cached_sequences"] == 0 and meta.read_text() != before
     assert track.run(track_config(smoke_dataset, tmp_path, *changed))["cached_sequences"] == 1
+
+
+@pytest.mark.slow
+def test_the_cache_follows_the_frames_and_the_truth_files_not_the_folder_name(smoke_dataset, tmp_path):
+    """A dataset rendered again under the same name (other truth, other frames) is tracked afresh."""
+    dataset = tmp_path / "copy" / smoke_dataset.name
+    shutil.copytree(smoke_dataset / STATIC_SEQ, dataset / STATIC_SEQ)
+    shutil.copy(smoke_dataset / "manifest.json", dataset / "manifest.json")
+    common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
+    common += ["video=false", "max_frames=16", "dynamic_filter=false"]
+    first = track.run(track_config(dataset, tmp_path, *common))
+    assert first["cached_sequences"] == 0
+    tracked_rows = len(np.loadtxt(tmp_path / "out" / f"{STATIC_SEQ}.txt", delimiter=",", ndmin=2))
+    assert track.run(track_config(dataset, tmp_path, *common))["cached_sequences"] == 1
+    # other truth boxes: the ground-truth detector's detections are the new rows, not the cached ones
+    gt_file = dataset / STATIC_SEQ / "gt" / "gt.txt"
+    gt = np.loadtxt(gt_file, delimiter=",", ndmin=2)
+    np.savetxt(gt_file, gt[gt[:, 1] != gt[0, 1]], delimiter=",", fmt="%g")  # one target gone
+    fewer = track.run(track_config(dataset, tmp_path, *common))
+    assert fewer["cached_sequences"] == 0
+    assert len(np.loadtxt(tmp_path / "out" / f"{STATIC_SEQ}.txt", delimiter=",", ndmin=2)) < tracked_rows
+    fresh = track.run(track_config(dataset, tmp_path / "fresh", *common, "cache.enabled=false"))
+    for k in ("mota", "fp", "fn", "idsw"):
+        assert fewer[k] == fresh[k], k
+    # other frames, same names
+    frame = dataset / STATIC_SEQ / "img" / "000003.jpg"
+    frame.write_bytes(frame.read_bytes() + b"\0")
+    assert track.run(track_config(dataset, tmp_path, *common))["cached_sequences"] == 0
+    assert track.run(track_config(dataset, tmp_path, *common))["cached_sequences"] == 1
 
 
 def _no_networks(*args, **kwargs):

@@ -15,7 +15,7 @@ from omegaconf import DictConfig
 
 from spacetrack.config import resolved_dict
 from spacetrack.device import resolve_device
-from spacetrack.io import file_hash
+from spacetrack.io import file_hash, files_hash
 from spacetrack.motion.dynamic import DynamicFilter
 from spacetrack.onnx_backend import DETECTOR_BACKENDS, check_backend
 from spacetrack.pipeline.cache import CacheKey, config_hash
@@ -103,8 +103,20 @@ def _require_fold(cfg: DictConfig, key: str) -> None:
         )
 
 
+def ground_truth_root(cfg: DictConfig) -> Path | None:
+    """The dataset folder the ground-truth detector reads its boxes from (its `root`, or by default the
+    dataset being tracked, or the folder above a sequence given as `source`); None for any other detector."""
+    if "root" not in cfg.detector:
+        return None
+    if cfg.detector.root is not None:
+        return Path(str(cfg.detector.root))
+    return Path(str(cfg.source)).parent if cfg.source is not None else Path(str(cfg.dataset))
+
+
 def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKey:
-    """What made (or would make) a source's detections: networks by file hash, settings by config hash."""
+    """What made (or would make) a source's detections: networks by file hash, settings by config hash,
+    the frames by the bytes of the files they come from (a dataset rendered again under the same name is
+    another source), and the ground-truth detector's boxes by the bytes of the sequence's truth files."""
     detector = {k: v for k, v in resolved_dict(cfg.detector).items() if k not in SPEED_ONLY_KEYS}
     if "backend" in detector:  # the backend that runs ("auto" resolved on the device)
         device = resolve_device(cfg.detector.device).type
@@ -114,6 +126,10 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
     detector_id = config_hash(detector)
     if weights.detector is not None:
         detector_id += " " + file_hash(weights.detector)
+    truth_root = ground_truth_root(cfg)
+    if truth_root is not None:  # the ground-truth detector's boxes are the truth files' rows
+        folder = truth_root / source.name / "gt"
+        detector_id += " truth " + files_hash([folder / "gt.txt", folder / "static.txt"])
     reid = NO_REID
     if weights.reid is not None:
         backend = check_backend(cfg.reid.backend, resolve_device(cfg.reid.device).type)
@@ -128,7 +144,8 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
         reid=reid,
         enhance=config_hash(resolved_dict(cfg.enhance)),
         motion=config_hash({"motion": motion_settings}),
-        source=f"{source.description} ({source.num_frames} frames)",
+        source=f"{source.description} ({source.num_frames} frames)"
+        + (f" {files_hash(source.files)}" if source.files else ""),
     )
 
 
@@ -143,7 +160,7 @@ def build_stream(cfg: DictConfig, weights: Weights, timer: StageTimer | None = N
     """The per-frame stages: loads the networks."""
     extra = {"weights": str(weights.detector)} if weights.detector is not None else {}
     if cfg.detector.get("root", "") is None:  # the ground-truth detector reads the tracked dataset
-        extra["root"] = str(Path(str(cfg.source)).parent) if cfg.source is not None else cfg.dataset
+        extra["root"] = str(ground_truth_root(cfg))
     encoder = None
     if weights.reid is not None:
         encoder = instantiate(cfg.reid, weights=str(weights.reid))

@@ -25,7 +25,9 @@ class SourceError(ValueError):
 
 @dataclass
 class FrameSource:
-    """A named stream of RGB frames. `num_frames` is None for live sources; `fps` is frames per second."""
+    """A named stream of RGB frames. `num_frames` is None for live sources; `fps` is frames per second;
+    `files` the files the frames are read from (the images in order, or the video file; none for a live
+    source), whose bytes key the detection cache."""
 
     name: str
     description: str
@@ -33,6 +35,7 @@ class FrameSource:
     num_frames: int | None
     frames: Iterator[np.ndarray] = field(repr=False)
     live: bool = False
+    files: tuple[Path, ...] = ()
 
     def __iter__(self) -> Iterator[np.ndarray]:
         shape = None
@@ -55,14 +58,17 @@ def _image_frames(paths: list[Path]) -> Iterator[np.ndarray]:
 def sequence_source(root: str | Path, seq: str, *, image_dir: str = "img", fps: float = 10.0) -> FrameSource:
     """Frames `root/seq/<image_dir>/000001.jpg ...` of a rendered sequence (or any folder of such)."""
     paths = frame_paths(root, seq, image_dir)
-    return FrameSource(seq, str(Path(root) / seq / image_dir), fps, len(paths), _image_frames(paths))
+    description = str(Path(root) / seq / image_dir)
+    return FrameSource(seq, description, fps, len(paths), _image_frames(paths), files=tuple(paths))
 
 
 def folder_source(folder: str | Path, *, fps: float = 10.0) -> FrameSource:
     """The .jpg/.png images of `folder` in name order."""
     folder = Path(folder)
     paths = frame_paths(folder.parent, folder.name, ".")
-    return FrameSource(folder.name, f"folder {folder}", fps, len(paths), _image_frames(paths))
+    return FrameSource(
+        folder.name, f"folder {folder}", fps, len(paths), _image_frames(paths), files=tuple(paths)
+    )
 
 
 def _capture_frames(
@@ -94,7 +100,8 @@ def video_source(path: str | Path, *, fps: float | None = None) -> FrameSource:
     count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
     rate = fps or capture.get(cv2.CAP_PROP_FPS) or 10.0
     frames = _capture_frames(capture, f"video {path}", count if count > 0 else None)
-    return FrameSource(path.stem, f"video {path}", float(rate), count if count > 0 else None, frames)
+    total = count if count > 0 else None
+    return FrameSource(path.stem, f"video {path}", float(rate), total, frames, files=(path,))
 
 
 def camera_source(index: int, *, fps: float | None = None) -> FrameSource:
