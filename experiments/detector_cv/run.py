@@ -2,7 +2,8 @@
 
 Each (variant, fold) is one detector training in the MLflow experiment `detector`, the same run that
 `make train FOLD=k ARGS="model=... enhance=..."` makes, so Table 4 finds it, and a fold already trained
-with the same settings is reused instead of trained again. Its best weights are then scored on every
+with the same settings on the same dataset content (tag `data_content`) is reused instead of trained
+again. Its best weights are then scored on every
 frame-stride-th frame of the fold's validation sequences at native resolution: mAP@0.5, mAP@0.5:0.95
 and the recall of visible targets at score >= 0.5, overall and per scenario. Each finished piece is
 written to `<out>/results/<variant>_fold<k>.json` at once and `results.json` / `results.md` are rebuilt
@@ -108,7 +109,8 @@ def summary(matches: dict) -> dict[str, float]:
 
 def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     """(run id, best_* metrics, local best.pt) of the newest finished `detector` run trained exactly as
-    `cfg` would be (same fold, data, enhancement, model, start weights and training settings), or None."""
+    `cfg` would be (same fold, data, enhancement, model, start weights and training settings, and the same
+    dataset content: its `data_content` tag, the manifest's `content_hash`), or None."""
     uri = tracking_uri(cfg.logger.get("tracking_uri"))
     wanted = {
         k: v
@@ -117,9 +119,12 @@ def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
         and not any(n in k for n in NEUTRAL)
     }
     runs = finished_runs(cfg.logger.experiment, tags={"fold": str(cfg.fold)}, tracking_uri=uri)
+    content = str(load_manifest(Path(cfg.data_root) / cfg.data.name).get("content_hash"))
     for found in runs:
         params = found.data.params
         same = all(params.get(k, ADDED_LATER.get(k)) == v for k, v in wanted.items())
+        # the labels and frames it trained on (runs from before the tag cannot tell)
+        same = same and found.data.tags.get("data_content", content) == content
         if same and "best_map50" in found.data.metrics:
             local = artifact_file(found.info.run_id, "weights/best.pt", tracking_uri=uri)
             metrics = {k[len("best_") :]: v for k, v in found.data.metrics.items() if k.startswith("best_")}

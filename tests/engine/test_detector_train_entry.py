@@ -66,6 +66,18 @@ def test_a_resumed_training_continues_its_mlflow_run(tiny_dataset, tmp_path):
     assert again.info.run_id == first.info.run_id
     assert again.info.status == "FINISHED"
     assert again.data.tags["resumes"] == "1"
+    assert again.data.tags["data_content"] == "sha256:0"  # the manifest's content_hash
+
+
+def test_a_dataset_rendered_again_under_its_name_is_not_resumed(tiny_dataset, tmp_path):
+    """Same name, other content (labels made by other code, another seed): another training."""
+    common = ("fold=3", "model.width_multiple=0.125")
+    run(config(tiny_dataset, tmp_path, *common))
+    manifest = tiny_dataset / "manifest.json"
+    manifest.write_text(manifest.read_text().replace('"sha256:0"', '"sha256:1"'))
+    last = tmp_path / "run" / "weights" / "last.pt"
+    with pytest.raises(ValueError, match=r"data_content.*sha256:0.*sha256:1"):
+        run(config(tiny_dataset, tmp_path / "again", *common, f"resume={last}"))
 
 
 def test_resume_auto_finds_the_unfinished_run_of_the_same_settings(

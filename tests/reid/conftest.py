@@ -61,6 +61,7 @@ def tiny_dataset(tmp_path_factory) -> Path:
         "num_folds": 2,
         "image_ext": "jpg",
         "sequences": sequences,
+        "content_hash": "sha256:tiny",
     }
     (root / "manifest.json").write_text(json.dumps(manifest))
     return root

@@ -65,6 +65,8 @@ def test_fold_runs_are_children_of_the_cross_validation_parent(tiny_dataset, tmp
     children = [r for r in runs if r.data.tags.get(PARENT_RUN_TAG) == parent_id]
     assert sorted(r.info.run_name for r in children) == ["fold0", "fold1"]
     child = children[0]
+    manifest = json.loads((tiny_dataset / "manifest.json").read_text())
+    assert child.data.tags["data_content"] == manifest["content_hash"]  # which labels and frames it saw
     assert {"distances.png", "metrics.json", "weights"} <= {
         a.path for a in client.list_artifacts(child.info.run_id)
     }

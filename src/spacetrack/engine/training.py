@@ -146,7 +146,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     weights = resolve_weights(cfg.weights, model.arch)
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
-    run_settings = _run_settings(cfg, weights)
+    run_settings = _run_settings(cfg, weights) | {"data_content": manifest.get("content_hash")}
     resume = broadcast_object(
         _resume_from(cfg, trainer, model, run_settings) if world.is_main else None, world
     )
@@ -157,7 +157,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
         print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
     gam = model.arch["gam_position"] or "none"
     tags = {"fold": str(cfg.fold), "model": "yolov5s" if gam == "none" else "yolov5s_gam", "gam_position": gam,
-            "enhance": enhancer.name}  # fmt: skip
+            "enhance": enhancer.name, "data_content": str(manifest.get("content_hash"))}  # fmt: skip
     return _Fold(
         model, loss_fn, train_set, val_set, trainer, run_settings, resume, out_dir, class_names, tags
     )
@@ -193,7 +193,9 @@ def _model_and_loss(cfg: DictConfig, num_classes: int) -> tuple[torch.nn.Module,
 
 
 def _run_settings(cfg: DictConfig, weights: Path | None) -> dict:
-    """Everything besides the trainer's own keys that changes the result; a resume must not change it."""
+    """Everything besides the trainer's own keys that changes the result; a resume must not change it.
+    (`_prepare_fold` adds the dataset's `content_hash`: a dataset rendered again under its name, with
+    other labels or frames, is another training.)"""
     return (
         resolved_dict(OmegaConf.masked_copy(cfg, ["data", "enhance", "model", "fold"]))
         | {k: v for k, v in resolved_dict(cfg.train).items() if k not in ("trainer", "threads")}

@@ -143,7 +143,7 @@ def _fold_run(
         cfg,
         run_name=f"fold{fold}",
         parent_run_id=parent_run_id,
-        tags={"fold": str(fold)},
+        tags={"fold": str(fold), "data_content": str(load_manifest(Path(cfg.dataset)).get("content_hash"))},
         continue_run_id=resume_state and resume_state.get("mlflow_run_id"),
     )
 
