@@ -146,7 +146,8 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     weights = resolve_weights(cfg.weights, model.arch)
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
-    run_settings = _run_settings(cfg, weights) | {"data_content": manifest.get("content_hash")}
+    content = manifest.get("content_hash")
+    run_settings = _run_settings(cfg, weights) | {"data_content": content}
     resume = broadcast_object(
         _resume_from(cfg, trainer, model, run_settings) if world.is_main else None, world
     )
@@ -157,7 +158,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
         print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
     gam = model.arch["gam_position"] or "none"
     tags = {"fold": str(cfg.fold), "model": "yolov5s" if gam == "none" else "yolov5s_gam", "gam_position": gam,
-            "enhance": enhancer.name, "data_content": str(manifest.get("content_hash"))}  # fmt: skip
+            "enhance": enhancer.name, "data_content": str(content)}  # fmt: skip
     return _Fold(
         model, loss_fn, train_set, val_set, trainer, run_settings, resume, out_dir, class_names, tags
     )

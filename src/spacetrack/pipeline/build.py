@@ -19,6 +19,7 @@ from spacetrack.io import file_hash, files_hash
 from spacetrack.motion.dynamic import DynamicFilter
 from spacetrack.onnx_backend import DETECTOR_BACKENDS, check_backend
 from spacetrack.pipeline.cache import CacheKey, config_hash
+from spacetrack.pipeline.detector import GroundTruthDetector
 from spacetrack.pipeline.runner import filter_mode
 from spacetrack.pipeline.sources import FrameSource
 from spacetrack.pipeline.stages import DetectionStream
@@ -128,8 +129,7 @@ def cache_key(cfg: DictConfig, weights: Weights, source: FrameSource) -> CacheKe
         detector_id += " " + file_hash(weights.detector)
     truth_root = ground_truth_root(cfg)
     if truth_root is not None:  # the ground-truth detector's boxes are the truth files' rows
-        folder = truth_root / source.name / "gt"
-        detector_id += " truth " + files_hash([folder / "gt.txt", folder / "static.txt"])
+        detector_id += " truth " + files_hash(GroundTruthDetector.truth_files(truth_root, source.name))
     reid = NO_REID
     if weights.reid is not None:
         backend = check_backend(cfg.reid.backend, resolve_device(cfg.reid.device).type)

@@ -224,16 +224,22 @@ class GroundTruthDetector:
         self.identity = f"ground-truth {self.root.name} score={score}"
         self._rows = np.zeros((0, 9))
 
+    @staticmethod
+    def truth_files(root: str | Path, sequence: str) -> tuple[Path, Path]:
+        """The files its boxes of `sequence` come from: moving targets, then static objects (optional)."""
+        folder = Path(root) / sequence / "gt"
+        return folder / "gt.txt", folder / "static.txt"
+
     def begin(self, source: FrameSource) -> None:
-        folder = self.root / source.name / "gt"
-        if not (folder / "gt.txt").is_file():
+        moving, static = self.truth_files(self.root, source.name)
+        if not moving.is_file():
             raise FileNotFoundError(
-                f"detector=ground_truth needs {folder / 'gt.txt'}: source {source.description} is not a "
+                f"detector=ground_truth needs {moving}: source {source.description} is not a "
                 f"sequence of dataset {self.root}"
             )
-        rows = [read_mot(folder / "gt.txt")]
-        if (folder / "static.txt").is_file():
-            rows.append(read_mot(folder / "static.txt"))
+        rows = [read_mot(moving)]
+        if static.is_file():
+            rows.append(read_mot(static))
         table = np.concatenate(rows)
         self._rows = table[table[:, CONF] > 0]
 
