@@ -4,11 +4,13 @@ trained exactly as asked, and tabulates its pieces."""
 from __future__ import annotations
 
 import importlib.util
+import json
 
 import pytest
 from omegaconf import open_dict
 
 from spacetrack.config import REPO_ROOT, compose_config
+from spacetrack.data.layout import FORMAT_VERSION, MANIFEST
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 
 spec = importlib.util.spec_from_file_location("detector_cv", REPO_ROOT / "experiments/detector_cv/run.py")
@@ -16,14 +18,25 @@ study = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(study)
 
 
+def write_manifest(data_root, content: str) -> None:
+    """A dataset manifest under `data_root` (the study reads only its content hash)."""
+    folder = data_root / "space_default"
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest = {"format_version": FORMAT_VERSION, "name": "space_default", "content_hash": content}
+    (folder / MANIFEST).write_text(json.dumps(manifest))
+
+
 @pytest.fixture
 def train_config(tmp_path):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    write_manifest(tmp_path / "data", "sha256:0")
 
     def make(*overrides):
         cfg = compose_config(
-            "train", ["fold=3", f"output_dir={tmp_path}", f"logger.tracking_uri={uri}", *overrides]
-        )
+            "train",
+            ["fold=3", f"output_dir={tmp_path}", f"logger.tracking_uri={uri}", f"data_root={tmp_path / 'data'}",
+             *overrides],
+        )  # fmt: skip
         with open_dict(cfg):
             cfg.cv_parent_run_id = None
         return cfg
@@ -31,8 +44,9 @@ def train_config(tmp_path):
     return make
 
 
-def finished_run(cfg, weights, map50: float) -> str:
-    with start_run(cfg, tags={"fold": str(cfg.fold)}) as run:
+def finished_run(cfg, weights, map50: float, content: str | None = "sha256:0") -> str:
+    tags = {"fold": str(cfg.fold)} | ({} if content is None else {"data_content": content})
+    with start_run(cfg, tags=tags) as run:
         log_metrics_step({"best_map50": map50, "best_map50_95": map50 / 2}, step=0)
         log_artifact_file(weights, "weights")
         return run.info.run_id
@@ -66,6 +80,20 @@ def test_a_run_made_before_a_training_key_existed_matches_that_keys_earlier_valu
     assert study.matching_run(train_config("enhance=none", "train.trainer.sync_bn=true")) is None
 
 
+def test_a_run_is_reused_only_on_the_same_dataset_content(train_config, tmp_path):
+    weights = tmp_path / "best.pt"
+    weights.write_bytes(b"weights")
+    cfg = train_config("enhance=none")
+    other = finished_run(cfg, weights, 0.4, content="sha256:1")  # the dataset was re-rendered since
+    assert study.matching_run(cfg) is None
+    untagged = finished_run(cfg, weights, 0.5, content=None)  # made before the tag existed: cannot tell
+    assert study.matching_run(cfg)[0] == untagged != other
+    write_manifest(tmp_path / "data", "sha256:1")
+    assert study.matching_run(cfg)[0] == untagged  # the newest of the two that may match
+    same = finished_run(cfg, weights, 0.6, content="sha256:1")
+    assert study.matching_run(cfg)[0] == same
+
+
 def test_table_lists_each_fold_and_the_means_per_scenario():
     def piece(slug, fold, map50, dim):
         overall = {"map50": map50, "map50_95": map50 / 2, "recall_at_score": 0.9, "frames": 300}
@@ -95,7 +123,8 @@ def test_table_lists_each_fold_and_the_means_per_scenario():
 def test_rescoring_takes_the_pieces_own_run_or_leaves_the_piece_alone(train_config, tmp_path, monkeypatch):
     weights = tmp_path / "best.pt"
     weights.write_bytes(b"weights")
-    overrides = [f"output_dir={tmp_path}", f"logger.tracking_uri=sqlite:///{tmp_path / 'mlflow.db'}"]
+    overrides = [f"output_dir={tmp_path}", f"logger.tracking_uri=sqlite:///{tmp_path / 'mlflow.db'}",
+                 f"data_root={tmp_path / 'data'}"]  # fmt: skip
     cfg = study.variant_config("yolov5s", 3, overrides, tmp_path)
     run_id = finished_run(cfg, weights, 0.4)
     scored = []
