@@ -168,6 +168,16 @@ def write_table() -> Path:
     return path
 
 
+def _triple(d: dict) -> str:
+    """mAP@0.5 / mAP@0.5:0.95 / recall at score >= 0.5 of one scored group."""
+    return f"{d['map50']:.3f} / {d['map50_95']:.3f} / {d['recall_at_score']:.3f}"
+
+
+def _mota(piece: dict, truth: str) -> list[float]:
+    """MOTA % of each row of `ROWS`, `piece`'s detector tracked against `truth`."""
+    return [100 * piece["tracking"][truth][row]["metrics"]["mota"] for row in ROWS]
+
+
 def _own_truth_section(found: list[dict]) -> list[str]:
     """Each truth measured with the detector trained on it, on the folds that have both: the decision."""
     by_fold = defaultdict(dict)
@@ -191,11 +201,8 @@ def _own_truth_section(found: list[dict]) -> list[str]:
         cells, mota = [], {}
         for truth in TRUTHS:
             d = by_fold[fold][truth]["detection"][truth]["all"]
-            cells.append(
-                f"{d['map50']:.3f} / {d['map50_95']:.3f} / {d['recall_at_score']:.3f} / {d['map50_any']:.3f}"
-            )
-            tracking = by_fold[fold][truth]["tracking"][truth]
-            mota[truth] = [100 * tracking[row]["metrics"]["mota"] for row in ROWS]
+            cells.append(f"{_triple(d)} / {d['map50_any']:.3f}")
+            mota[truth] = _mota(by_fold[fold][truth], truth)
             totals[truth].append([d["map50"], *mota[truth]])
         moved = [" -> ".join(f"{mota[t][i]:.1f}" for t in TRUTHS) for i in range(len(ROWS))]
         gap = " -> ".join(f"{mota[t][1] - mota[t][0]:.1f}" for t in TRUTHS)
@@ -227,29 +234,26 @@ def _seen_section(pieces: list[dict]) -> list[str]:
         "| fold | all | any class | dim | strong light | yolo_deepsort_paper | gt_deepsort_paper | gap |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    totals = defaultdict(list)
-    for piece in sorted(pieces, key=lambda p: p["fold"]):
-        detection, tracking = piece["detection"]["seen"], piece["tracking"]["seen"]
-        cells = []
-        for group in ("all", "dim", "strong_light"):
-            d = detection.get(group)
-            cells.append(
-                "-" if not d else f"{d['map50']:.3f} / {d['map50_95']:.3f} / {d['recall_at_score']:.3f}"
-            )
-            if d:
-                totals[group].append(d["map50"])
-        mota = [100 * tracking[row]["metrics"]["mota"] for row in ROWS]
-        totals["any"].append(detection["all"]["map50_any"])
-        totals["mota"].append(mota)
+    pieces = sorted(pieces, key=lambda p: p["fold"])
+    motas = []
+    for piece in pieces:
+        detection = piece["detection"]["seen"]
+        cells = ["-" if g not in detection else _triple(detection[g]) for g in ("all", "dim", "strong_light")]
+        mota = _mota(piece, "seen")
+        motas.append(mota)
         lines.append(
             f"| {piece['fold']} | {cells[0]} | {detection['all']['map50_any']:.3f} | {cells[1]} | {cells[2]} "
             f"| {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |"
         )
-    mota = np.mean(totals["mota"], axis=0)
-    mean = {k: f"{np.mean(v):.3f}" if v else "-" for k, v in totals.items() if k != "mota"}
+
+    def mean(group: str, key: str = "map50") -> str:
+        values = [p["detection"]["seen"][group][key] for p in pieces if group in p["detection"]["seen"]]
+        return f"{np.mean(values):.3f}" if values else "-"
+
+    mota = np.mean(motas, axis=0)
     lines.append(
-        f"| mean ({len(pieces)} folds), mAP@0.5 | {mean['all']} | {mean['any']} | {mean.get('dim', '-')} "
-        f"| {mean.get('strong_light', '-')} | {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |"
+        f"| mean ({len(pieces)} folds), mAP@0.5 | {mean('all')} | {mean('all', 'map50_any')} | {mean('dim')} "
+        f"| {mean('strong_light')} | {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |"
     )
     return lines
 
@@ -258,7 +262,7 @@ def _cell(piece: dict, group: str) -> str:
     a, b = (piece["detection"][t].get(group) for t in TRUTHS)
     if a is None:
         return "-"
-    return " -> ".join(f"{d['map50']:.3f} / {d['map50_95']:.3f} / {d['recall_at_score']:.3f}" for d in (a, b))
+    return " -> ".join(_triple(d) for d in (a, b))
 
 
 def _sections(trained: str, pieces: list[dict]) -> list[str]:
@@ -288,18 +292,11 @@ def _sections(trained: str, pieces: list[dict]) -> list[str]:
         "| fold | " + " | ".join(ROWS) + " |",
         "|---|" + "---|" * len(ROWS),
     ]
-    for p in pieces:
-        cells = [
-            " -> ".join(f"{100 * p['tracking'][t][row]['metrics']['mota']:.1f}" for t in TRUTHS)
-            for row in ROWS
-        ]
+    motas = {t: np.array([_mota(p, t) for p in pieces]) for t in TRUTHS}
+    for i, p in enumerate(pieces):
+        cells = [" -> ".join(f"{motas[t][i, r]:.1f}" for t in TRUTHS) for r in range(len(ROWS))]
         lines.append(f"| {p['fold']} | " + " | ".join(cells) + " |")
-    cells = [
-        " -> ".join(
-            f"{100 * np.mean([p['tracking'][t][row]['metrics']['mota'] for p in pieces]):.1f}" for t in TRUTHS
-        )
-        for row in ROWS
-    ]
+    cells = [" -> ".join(f"{motas[t][:, r].mean():.1f}" for t in TRUTHS) for r in range(len(ROWS))]
     return lines + ["| mean | " + " | ".join(cells) + " |"]
 
 
