@@ -7,11 +7,13 @@ the camera shows above its noise. This script compares the two:
 
 1. `labels.json`: per scenario and sequence, how many silhouette boxes the seen truth shrinks below half
    their area (IoU < 0.5: a detector framing what it sees cannot match them) or hides altogether.
-2. `results/<truth>_fold<k>.json`: each fold's detector (`<detectors>/yolov5s_fold<k>/weights/best.pt`,
-   trained on the silhouette or the seen truth, as its recorded settings say) scored against both
-   truths exactly as `experiments/detector_cv/` scores it (every 2nd validation frame at 640x480:
-   mAP@0.5, mAP@0.5:0.95, recall at score >= 0.5, overall and per scenario), and tracked against both
-   with Table 4's `yolo_deepsort_paper` and `gt_deepsort_paper` rows.
+2. `results/<truth>_fold<k>.json` (`<truth>_<variant>_fold<k>.json` for another variant than plain
+   YOLOv5s): each fold's detector (`<detectors>/<variant>_fold<k>/weights/best.pt`, trained on the
+   silhouette or the seen truth, as its recorded settings say) scored against both truths exactly as
+   `experiments/detector_cv/` scores it (every 2nd validation frame at 640x480: mAP@0.5, mAP@0.5:0.95,
+   recall at score >= 0.5, overall and per scenario), and tracked against both with Table 4's rows of
+   the paper's settings: `yolo_deepsort_paper` (`gam_deepsort_paper` for YOLOv5s + GAM on DWT/HSV) and
+   `gt_deepsort_paper`.
 
     python -m spacetrack.build_data data.name=space_default_seen data.truth=seen
     python experiments/seen_truth/run.py --folds 0 2 3 6 7 \\
@@ -19,6 +21,10 @@ the camera shows above its noise. This script compares the two:
     python experiments/detector_cv/run.py --folds 7 --variants yolov5s \\
         --out experiments/detector_cv/seen_truth -- data.name=space_default_seen   # make train on seen
     python experiments/seen_truth/run.py --folds 7 --detectors outputs/detector_cv/seen_truth
+    python experiments/detector_cv/run.py --folds 3 --variants dwt_hsv_gam \
+        --out experiments/detector_cv/seen_truth -- data.name=space_default_seen   # the paper's detector
+    python experiments/seen_truth/run.py --folds 3 --variant dwt_hsv_gam \
+        --detectors outputs/detector_cv/seen_truth
 
 Each fold's piece is written as it finishes; `results.md` is rebuilt from every piece present.
 """
@@ -48,7 +54,12 @@ sys.path.insert(0, str(REPO_ROOT / "experiments" / "detector_cv"))
 import run as detector_cv  # noqa: E402  (experiments/detector_cv/run.py)
 
 TRUTHS = {"silhouette": "space_default", "seen": "space_default_seen"}
-ROWS = ("yolo_deepsort_paper", "gt_deepsort_paper")
+# Each detector variant's tracking rows (Table 4's): the paper's settings on its detections, then on
+# ground-truth boxes.
+ROWS = {
+    "yolov5s": ("yolo_deepsort_paper", "gt_deepsort_paper"),
+    "dwt_hsv_gam": ("gam_deepsort_paper", "gt_deepsort_paper"),
+}
 SHRUNK_IOU = 0.5
 
 
@@ -106,16 +117,18 @@ def trained_on(weights: Path) -> str:
     raise ValueError(f"{weights}: trained on data.name={data!r}, expected one of {list(TRUTHS.values())}")
 
 
-def fold_piece(fold: int, weights: Path) -> dict:
-    """One fold's detector scored and tracked against both truths."""
+def fold_piece(fold: int, weights: Path, variant: str = "yolov5s") -> dict:
+    """One fold's detector of `variant` (a key of ROWS) scored and tracked against both truths."""
     rows = _table4_rows()
-    out = {"fold": fold, "weights": str(weights), "trained_on": trained_on(weights), "detection": {}}
-    out["tracking"] = {}
+    out = {"fold": fold, "variant": variant, "weights": str(weights), "trained_on": trained_on(weights)}
+    out |= {"detection": {}, "tracking": {}}
     for truth, name in TRUTHS.items():
-        cfg = compose_config("train", ["model=yolov5s", "enhance=none", f"fold={fold}", f"data.name={name}"])
+        cfg = compose_config(
+            "train", [*detector_cv.VARIANTS[variant][1], f"fold={fold}", f"data.name={name}"]
+        )
         out["detection"][truth] = detector_cv.score(cfg, weights, frame_stride=2)
         out["tracking"][truth] = {}
-        for row in ROWS:
+        for row in ROWS[variant]:
             detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
             overrides = (
                 rows[row][1]
@@ -157,10 +170,13 @@ def write_table() -> Path:
     ]
     for name, v in sorted(labels["scenarios"].items(), key=lambda kv: (kv[0] == "all", kv[0])):
         lines.append(f"| {name} | {v['boxes']} | {v['hidden']} | {v['shrunk']} | {v['lost_share']:.3f} |")
-    lines += _own_truth_section(found)
-    lines += _seen_section([p for p in found if p["trained_on"] == "seen"])
+    plain = [p for p in found if _variant(p) == "yolov5s"]
+    lines += _own_truth_section(plain)
+    seen = {v: [p for p in found if p["trained_on"] == "seen" and _variant(p) == v] for v in ROWS}
+    for variant in ROWS:
+        lines += _seen_section(seen[variant], variant, seen["yolov5s"])
     for trained in TRUTHS:
-        pieces = [p for p in found if p["trained_on"] == trained]
+        pieces = [p for p in plain if p["trained_on"] == trained]
         if pieces:
             lines += _sections(trained, pieces)
     path = HERE / "results.md"
@@ -173,9 +189,14 @@ def _triple(d: dict) -> str:
     return f"{d['map50']:.3f} / {d['map50_95']:.3f} / {d['recall_at_score']:.3f}"
 
 
+def _variant(piece: dict) -> str:
+    """The detector variant a piece measured (pieces that do not say are plain YOLOv5s)."""
+    return piece.get("variant", "yolov5s")
+
+
 def _mota(piece: dict, truth: str) -> list[float]:
-    """MOTA % of each row of `ROWS`, `piece`'s detector tracked against `truth`."""
-    return [100 * piece["tracking"][truth][row]["metrics"]["mota"] for row in ROWS]
+    """MOTA % of each of its variant's ROWS, `piece`'s detector tracked against `truth`."""
+    return [100 * piece["tracking"][truth][row]["metrics"]["mota"] for row in ROWS[_variant(piece)]]
 
 
 def _own_truth_section(found: list[dict]) -> list[str]:
@@ -204,7 +225,7 @@ def _own_truth_section(found: list[dict]) -> list[str]:
             cells.append(f"{_triple(d)} / {d['map50_any']:.3f}")
             mota[truth] = _mota(by_fold[fold][truth], truth)
             totals[truth].append([d["map50"], *mota[truth]])
-        moved = [" -> ".join(f"{mota[t][i]:.1f}" for t in TRUTHS) for i in range(len(ROWS))]
+        moved = [" -> ".join(f"{mota[t][i]:.1f}" for t in TRUTHS) for i in range(len(ROWS["yolov5s"]))]
         gap = " -> ".join(f"{mota[t][1] - mota[t][0]:.1f}" for t in TRUTHS)
         lines.append(f"| {fold} | {' -> '.join(cells)} | {moved[0]} | {moved[1]} | {gap} |")
     mean = {t: np.mean(totals[t], axis=0) for t in TRUTHS}
@@ -220,19 +241,26 @@ def _own_truth_section(found: list[dict]) -> list[str]:
     return lines
 
 
-def _seen_section(pieces: list[dict]) -> list[str]:
-    """The seen truth alone, every fold trained on it: what the project measures against."""
+def _seen_section(pieces: list[dict], variant: str, plain: list[dict]) -> list[str]:
+    """The seen truth alone, every fold trained on it: what the project measures against. Another
+    variant than plain YOLOv5s is set beside `plain`'s pieces of the same folds, where there are some."""
     if not pieces:
         return []
+    name = detector_cv.VARIANTS[variant][0]
+    title = "each fold trained on it" + ("" if variant == "yolov5s" else f", YOLOv5s {name}")
+    plain_by_fold = {p["fold"]: p for p in plain} if variant != "yolov5s" else {}
+    beside = ["plain YOLOv5s: mAP@0.5 / yolo_deepsort_paper"] if plain_by_fold else []
     lines = [
         "",
-        "## The seen truth, each fold trained on it",
+        f"## The seen truth, {title}",
         "",
         "mAP@0.5 / mAP@0.5:0.95 / recall at score >= 0.5, overall and per scenario (- where the fold has",
         "no such sequence); MOTA % with the paper's settings and with ground-truth boxes, and their gap.",
         "",
-        "| fold | all | any class | dim | strong light | yolo_deepsort_paper | gt_deepsort_paper | gap |",
-        "|---|---|---|---|---|---|---|---|",
+        "| fold | all | any class | dim | strong light | "
+        + " | ".join([*ROWS[variant], "gap", *beside])
+        + " |",
+        "|---|---|---|---|---|---|---|---|" + "---|" * len(beside),
     ]
     pieces = sorted(pieces, key=lambda p: p["fold"])
     motas = []
@@ -241,9 +269,14 @@ def _seen_section(pieces: list[dict]) -> list[str]:
         cells = ["-" if g not in detection else _triple(detection[g]) for g in ("all", "dim", "strong_light")]
         mota = _mota(piece, "seen")
         motas.append(mota)
+        other = plain_by_fold.get(piece["fold"])
+        paired = [] if not plain_by_fold else ["-"] if other is None else [
+            f"{other['detection']['seen']['all']['map50']:.3f} / {_mota(other, 'seen')[0]:.1f}"
+        ]  # fmt: skip
         lines.append(
             f"| {piece['fold']} | {cells[0]} | {detection['all']['map50_any']:.3f} | {cells[1]} | {cells[2]} "
             f"| {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |"
+            + "".join(f" {c} |" for c in paired)
         )
 
     def mean(group: str, key: str = "map50") -> str:
@@ -251,9 +284,16 @@ def _seen_section(pieces: list[dict]) -> list[str]:
         return f"{np.mean(values):.3f}" if values else "-"
 
     mota = np.mean(motas, axis=0)
+    paired = [plain_by_fold[p["fold"]] for p in pieces if p["fold"] in plain_by_fold]
+    tail = ""
+    if plain_by_fold:
+        tail = " - |" if not paired else (
+            f" {np.mean([p['detection']['seen']['all']['map50'] for p in paired]):.3f} / "
+            f"{np.mean([_mota(p, 'seen')[0] for p in paired]):.1f} ({len(paired)} folds) |"
+        )  # fmt: skip
     lines.append(
         f"| mean ({len(pieces)} folds), mAP@0.5 | {mean('all')} | {mean('all', 'map50_any')} | {mean('dim')} "
-        f"| {mean('strong_light')} | {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |"
+        f"| {mean('strong_light')} | {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |" + tail
     )
     return lines
 
@@ -289,14 +329,14 @@ def _sections(trained: str, pieces: list[dict]) -> list[str]:
         "",
         "Tracking: MOTA % with Table 4's row settings, silhouette -> seen truth.",
         "",
-        "| fold | " + " | ".join(ROWS) + " |",
-        "|---|" + "---|" * len(ROWS),
+        "| fold | " + " | ".join(ROWS["yolov5s"]) + " |",
+        "|---|" + "---|" * len(ROWS["yolov5s"]),
     ]
     motas = {t: np.array([_mota(p, t) for p in pieces]) for t in TRUTHS}
     for i, p in enumerate(pieces):
-        cells = [" -> ".join(f"{motas[t][i, r]:.1f}" for t in TRUTHS) for r in range(len(ROWS))]
+        cells = [" -> ".join(f"{motas[t][i, r]:.1f}" for t in TRUTHS) for r in range(len(ROWS["yolov5s"]))]
         lines.append(f"| {p['fold']} | " + " | ".join(cells) + " |")
-    cells = [" -> ".join(f"{motas[t][:, r].mean():.1f}" for t in TRUTHS) for r in range(len(ROWS))]
+    cells = [" -> ".join(f"{motas[t][:, r].mean():.1f}" for t in TRUTHS) for r in range(len(ROWS["yolov5s"]))]
     return lines + ["| mean | " + " | ".join(cells) + " |"]
 
 
@@ -306,7 +346,9 @@ def main() -> None:
     )
     parser.add_argument("--folds", type=int, nargs="+", default=[3])
     parser.add_argument("--detectors", type=Path, default=Path("outputs/detector_cv/longer_pretraining"),
-                        help="folder holding yolov5s_fold<k>/weights/best.pt")  # fmt: skip
+                        help="folder holding <variant>_fold<k>/weights/best.pt")  # fmt: skip
+    parser.add_argument("--variant", default="yolov5s", choices=list(ROWS),
+                        help="the detector variant (experiments/detector_cv/run.py's name)")  # fmt: skip
     parser.add_argument("--data-root", type=Path, default=Path("data"))
     args = parser.parse_args()
     for name in TRUTHS.values():
@@ -316,13 +358,14 @@ def main() -> None:
     atomic_write_text(HERE / "labels.json", json.dumps(labels, indent=1) + "\n")
     (HERE / "results").mkdir(exist_ok=True)
     for fold in args.folds:
-        weights = args.detectors / f"yolov5s_fold{fold}" / "weights" / "best.pt"
+        weights = args.detectors / f"{args.variant}_fold{fold}" / "weights" / "best.pt"
         if not weights.is_file():
             raise SystemExit(
                 f"{weights} is missing: train fold {fold} first (experiments/detector_cv/run.py)"
             )
-        piece = fold_piece(fold, weights)
-        name = f"{piece['trained_on']}_fold{fold}.json"
+        piece = fold_piece(fold, weights, args.variant)
+        infix = "" if args.variant == "yolov5s" else f"_{args.variant}"
+        name = f"{piece['trained_on']}{infix}_fold{fold}.json"
         atomic_write_text(HERE / "results" / name, json.dumps(piece, indent=1) + "\n")
         print(
             f"fold {fold}:", {t: round(piece["detection"][t]["all"]["map50"], 3) for t in TRUTHS}, flush=True
