@@ -194,6 +194,11 @@ def _variant(piece: dict) -> str:
     return piece.get("variant", "yolov5s")
 
 
+def _folds(n: int) -> str:
+    """'1 fold', '9 folds'."""
+    return f"{n} fold" + ("s" if n != 1 else "")
+
+
 def _mota(piece: dict, truth: str) -> list[float]:
     """MOTA % of each of its variant's ROWS, `piece`'s detector tracked against `truth`."""
     return [100 * piece["tracking"][truth][row]["metrics"]["mota"] for row in ROWS[_variant(piece)]]
@@ -289,10 +294,10 @@ def _seen_section(pieces: list[dict], variant: str, plain: list[dict]) -> list[s
     if plain_by_fold:
         tail = " - |" if not paired else (
             f" {np.mean([p['detection']['seen']['all']['map50'] for p in paired]):.3f} / "
-            f"{np.mean([_mota(p, 'seen')[0] for p in paired]):.1f} ({len(paired)} folds) |"
+            f"{np.mean([_mota(p, 'seen')[0] for p in paired]):.1f} ({_folds(len(paired))}) |"
         )  # fmt: skip
     lines.append(
-        f"| mean ({len(pieces)} folds), mAP@0.5 | {mean('all')} | {mean('all', 'map50_any')} | {mean('dim')} "
+        f"| mean ({_folds(len(pieces))}), mAP@0.5 | {mean('all')} | {mean('all', 'map50_any')} | {mean('dim')} "
         f"| {mean('strong_light')} | {mota[0]:.1f} | {mota[1]:.1f} | {mota[1] - mota[0]:.1f} |" + tail
     )
     return lines
