@@ -47,3 +47,4 @@ def test_pretrain_config_trains_on_the_pretraining_set_from_scratch():
     assert cfg.train.input == "crops" and cfg.train.frame_stride == 2
     assert cfg.logger.experiment == "pretrain" and cfg.model.gam_position == "after_sppf"
     assert "slew" in cfg.data.scenario
+    assert cfg.data.truth == "silhouette"  # what the shipped pretrained files learnt from

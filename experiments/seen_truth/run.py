@@ -1,9 +1,10 @@
 """Silhouette truth against seen truth: how much of the detector's shortfall is boxes the image does not show.
 
-The default dataset labels each target with the box of its whole silhouette, lit or not; a target in
-its own shadow is black on black there (`ambient` 0), yet its truth box still frames the dark part.
-`data.truth=seen` renders the same frames (same seed, identical images) with boxes of only the pixels
-the camera shows above its noise. This script compares the two:
+`data.truth=silhouette` labels each target with the box of its whole silhouette, lit or not; a target
+in its own shadow is black on black there (`ambient` 0), yet its truth box still frames the dark part.
+`data.truth=seen` (the default) renders the same frames (same seed, identical images) with boxes of
+only the pixels the camera shows above its noise. This script compares the two, each rendered under a
+name of its own:
 
 1. `labels.json`: per scenario and sequence, how many silhouette boxes the seen truth shrinks below half
    their area (IoU < 0.5: a detector framing what it sees cannot match them) or hides altogether.
@@ -15,6 +16,7 @@ the camera shows above its noise. This script compares the two:
    the paper's settings: `yolo_deepsort_paper` (`gam_deepsort_paper` for YOLOv5s + GAM on DWT/HSV) and
    `gt_deepsort_paper`.
 
+    python -m spacetrack.build_data data.name=space_default_silhouette data.truth=silhouette
     python -m spacetrack.build_data data.name=space_default_seen data.truth=seen
     python experiments/seen_truth/run.py --folds 0 2 3 6 7 \\
         --detectors outputs/detector_cv/longer_pretraining              # trained on the silhouettes
@@ -53,7 +55,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(REPO_ROOT / "experiments" / "detector_cv"))
 import run as detector_cv  # noqa: E402  (experiments/detector_cv/run.py)
 
-TRUTHS = {"silhouette": "space_default", "seen": "space_default_seen"}
+TRUTHS = {"silhouette": "space_default_silhouette", "seen": "space_default_seen"}  # the same frames
 # Each detector variant's tracking rows (Table 4's): the paper's settings on its detections, then on
 # ground-truth boxes.
 ROWS = {
@@ -108,19 +110,32 @@ def _xyxy(rows: np.ndarray) -> torch.Tensor:
     return torch.cat([box[:, :2], box[:, :2] + box[:, 2:]], dim=1)
 
 
-def trained_on(weights: Path) -> str:
-    """Which truth `weights` was trained on, from the dataset named in its recorded settings."""
-    data = torch.load(weights, map_location="cpu", weights_only=False)["settings"]["data"]["name"]
+def trained_on(weights: Path, data_root: Path) -> str:
+    """Which truth `weights` was trained on: the study dataset whose content its run recorded
+    (`data_content`); for runs made before runs recorded it, the dataset name they record (their
+    settings' `data.truth` is the config default of their day, absent before the key existed, and need
+    not be what the dataset was rendered with)."""
+    settings = torch.load(weights, map_location="cpu", weights_only=False)["settings"]
+    content = settings.get("data_content")
     for truth, name in TRUTHS.items():
-        if data == name:
+        if content is not None and content == load_manifest(data_root / name).get("content_hash"):
             return truth
-    raise ValueError(f"{weights}: trained on data.name={data!r}, expected one of {list(TRUTHS.values())}")
+    if content is not None:
+        raise ValueError(f"{weights}: trained on data content {content}, none of {list(TRUTHS.values())}")
+    return (
+        "seen" if settings["data"]["name"] == TRUTHS["seen"] else settings["data"].get("truth", "silhouette")
+    )
 
 
-def fold_piece(fold: int, weights: Path, variant: str = "yolov5s") -> dict:
+def fold_piece(fold: int, weights: Path, variant: str = "yolov5s", data_root: Path = Path("data")) -> dict:
     """One fold's detector of `variant` (a key of ROWS) scored and tracked against both truths."""
     rows = _table4_rows()
-    out = {"fold": fold, "variant": variant, "weights": str(weights), "trained_on": trained_on(weights)}
+    out = {
+        "fold": fold,
+        "variant": variant,
+        "weights": str(weights),
+        "trained_on": trained_on(weights, data_root),
+    }
     out |= {"detection": {}, "tracking": {}}
     for truth, name in TRUTHS.items():
         cfg = compose_config(
@@ -368,7 +383,7 @@ def main() -> None:
             raise SystemExit(
                 f"{weights} is missing: train fold {fold} first (experiments/detector_cv/run.py)"
             )
-        piece = fold_piece(fold, weights, args.variant)
+        piece = fold_piece(fold, weights, args.variant, args.data_root)
         infix = "" if args.variant == "yolov5s" else f"_{args.variant}"
         name = f"{piece['trained_on']}{infix}_fold{fold}.json"
         atomic_write_text(HERE / "results" / name, json.dumps(piece, indent=1) + "\n")

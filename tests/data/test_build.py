@@ -11,8 +11,8 @@ import pytest
 from hydra.errors import MissingConfigException
 
 from spacetrack import build_data
-from spacetrack.config import compose_config
-from spacetrack.data.layout import frame_paths, load_manifest, read_mot, split_sequences
+from spacetrack.config import REPO_ROOT, compose_config
+from spacetrack.data.layout import frame_paths, load_manifest, read_mot, rendered_truth, split_sequences
 from spacetrack.data.yolo_dataset import read_labels
 
 
@@ -155,14 +155,18 @@ def test_seen_truth_labels_the_same_images_and_says_so(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     for root in (a, b):
         root.mkdir()
-    build_data.run(_tiny(a, "data.scenario.nominal.sun_phase_deg=[100,120]"))
-    build_data.run(_tiny(b, "data.scenario.nominal.sun_phase_deg=[100,120]", "data.truth=seen"))
+    assert _tiny(a).data.truth == "seen"  # the default
+    build_data.run(_tiny(a, "data.scenario.nominal.sun_phase_deg=[100,120]", "data.truth=silhouette"))
+    build_data.run(_tiny(b, "data.scenario.nominal.sun_phase_deg=[100,120]"))
     a, b = a / "space_smoke", b / "space_smoke"
     images = sorted(p.relative_to(a) for p in a.rglob("img/*"))
     assert images and all((a / rel).read_bytes() == (b / rel).read_bytes() for rel in images)
     assert "whole silhouette" in (a / "CARD.md").read_text()
     assert "pixels the camera shows" in (b / "CARD.md").read_text()
     assert json.loads((b / "manifest.json").read_text())["config"]["data"]["truth"] == "seen"
+    assert (rendered_truth(load_manifest(a)), rendered_truth(load_manifest(b))) == ("silhouette", "seen")
+    assert rendered_truth({"config": {"data": {"name": "older"}}}) == "silhouette"  # rendered before the key
+    assert rendered_truth({"name": "hand_made"}) is None  # not rendered here: nothing to check
     shrunk = 0
     for seq in load_manifest(a)["sequences"]:
         outline, seen = (read_mot(root / seq["name"] / "gt" / "gt.txt") for root in (a, b))
@@ -174,6 +178,13 @@ def test_seen_truth_labels_the_same_images_and_says_so(tmp_path):
         assert inside[shown].all()  # a seen box lies within its silhouette box
         shrunk += int((seen[shown, 4] * seen[shown, 5] < outline[shown, 4] * outline[shown, 5]).sum())
     assert shrunk > 0  # side- and back-lit targets lose their night side
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (REPO_ROOT / "conf" / "data").glob("*.yaml")))
+def test_every_dataset_config_passes_the_checks_a_render_makes_first(tmp_path, name):
+    cfg = compose_config("build_data", [f"data={name}", f"data_root={tmp_path}"])
+    build_data.check_config(cfg)  # every key a render reads is there and valid
+    assert cfg.data.truth in ("seen", "silhouette")
 
 
 def test_bad_input_is_refused_before_any_work(tmp_path):

@@ -1,3 +1,4 @@
+import json
 import os
 
 import mlflow
@@ -116,6 +117,21 @@ def test_resume_auto_finds_the_unfinished_run_of_the_same_settings(
 def test_fold_outside_the_nine_is_refused(tiny_dataset, tmp_path, fold):
     with pytest.raises(ValueError, match=f"fold {fold} is outside 0..8"):
         run(config(tiny_dataset, tmp_path, f"fold={fold}"))
+
+
+def test_a_dataset_rendered_with_another_truth_is_refused_naming_both(tiny_dataset, tmp_path):
+    manifest = tiny_dataset / "manifest.json"
+    content = json.loads(manifest.read_text())
+    content["config"] = {"data": {"name": tiny_dataset.name}}  # rendered before data.truth: silhouettes
+    manifest.write_text(json.dumps(content))
+    with pytest.raises(
+        ValueError,
+        match=r"manifest\.json: rendered with data\.truth=silhouette, the config asks data\.truth=seen",
+    ):
+        run(config(tiny_dataset, tmp_path, "fold=3"))
+    # Asked for the truth it holds, the dataset passes that check and meets the next one.
+    with pytest.raises(ValueError, match="fold 9 is outside 0..8"):
+        run(config(tiny_dataset, tmp_path, "fold=9", "data.truth=silhouette"))
 
 
 def test_cross_validation_parent_gets_mean_and_std(tiny_dataset, tmp_path, monkeypatch):

@@ -34,7 +34,7 @@ def test_oracle_detections_track_almost_perfectly(smoke_dataset):
     sequences = {}
     for seq_dir in sorted(smoke_dataset.glob("seq_*")):
         gt = read_mot(seq_dir / "gt" / "gt.txt")
-        assert (gt[:, 6] == 0).sum() < len(gt) / 4  # some hidden rows, mostly visible ones
+        assert (gt[:, 6] == 0).sum() < len(gt) / 2  # mostly visible rows (the occlusion clip hides a quarter)
         rows = track_sequence(instantiate(cfg.tracker), oracle_detections(gt, rng))
         sequences[seq_dir.name] = (gt, rows_as_mot(rows))
     scores = evaluate(sequences)

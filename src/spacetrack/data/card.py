@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_name, read_mot, read_rgb
+from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_name, read_mot, read_rgb, rendered_truth
 from spacetrack.viz.draw import draw_boxes
 from spacetrack.viz.sheet import contact_sheet, write_image
 
@@ -113,7 +113,7 @@ def card_markdown(manifest: dict, stats: dict) -> str:
         f"{manifest['width']}x{manifest['height']} at {manifest['fps']} fps, {manifest['num_folds']} folds",
         f"- {stats['moving_targets']} moving targets, {stats['static_objects']} static objects",
         f"- classes: {', '.join(manifest['class_names'])}",
-        f"- truth boxes frame each object's {_TRUTH_WORDS[manifest['config']['data'].get('truth', 'silhouette')]}",
+        f"- truth boxes frame each object's {_TRUTH_WORDS[rendered_truth(manifest)]}",
         f"- ground-truth rows of moving targets: {stats['gt_rows_moving']}, of which fully hidden: "
         f"{stats['gt_rows_hidden']}",
         f"- occlusion events (runs of frames a target is hidden by another object): "

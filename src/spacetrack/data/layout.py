@@ -60,6 +60,25 @@ def load_manifest(root: str | Path) -> dict:
     return manifest
 
 
+def rendered_truth(manifest: dict) -> str | None:
+    """What the boxes of a rendered dataset frame (its `data.truth`: "seen" or "silhouette"; datasets
+    rendered before the key existed framed silhouettes), or None for a dataset not rendered here."""
+    data = manifest.get("config", {}).get("data")
+    return None if data is None else data.get("truth", "silhouette")
+
+
+def check_rendered_truth(manifest: dict, root: str | Path, truth: str) -> None:
+    """Refuse to use the dataset at `root` as `data.truth=<truth>` when it was rendered with another truth:
+    its boxes are not the ones the config (and every setting recorded from it) says."""
+    rendered = rendered_truth(manifest)
+    if rendered is not None and rendered != truth:
+        raise ValueError(
+            f"{Path(root) / MANIFEST}: rendered with data.truth={rendered}, the config asks data.truth={truth}; "
+            f"render it again (python -m spacetrack.build_data data.name={manifest.get('name')} overwrite=true) "
+            f"or pass data.truth={rendered}"
+        )
+
+
 def split_sequences(manifest: dict, fold: int) -> tuple[list[str], list[str]]:
     """(training, validation) sequence names: fold `fold` validates, every other fold trains."""
     num_folds = int(manifest["num_folds"])

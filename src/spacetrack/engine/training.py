@@ -21,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from spacetrack.config import resolved_dict
 from spacetrack.data.crops import CropDataset
 from spacetrack.data.frame_store import FrameStore
-from spacetrack.data.layout import load_manifest, split_sequences
+from spacetrack.data.layout import check_rendered_truth, load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
 from spacetrack.engine.checkpoint import peek_checkpoint, resume_choice, unfinished_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_group
@@ -136,6 +136,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     rank 0 chooses the checkpoint to resume and the folder, the other processes follow."""
     root = Path(cfg.data_root) / cfg.data.name
     manifest = load_manifest(root)
+    check_rendered_truth(manifest, root, cfg.data.truth)
     train_names, val_names = split_sequences(manifest, cfg.fold)
     class_names = list(manifest["class_names"])
     if cfg.train.threads:
