@@ -5,15 +5,15 @@ owner map records which object each pixel shows, and boxes, visibility and motio
 it. Image-only effects (motion blur, optics, noise, stray light) never change the truth.
 
 Two truths are offered (`TRUTH_MODES`, the dataset's `truth` key):
-- "silhouette" (the default): every pixel of an object's silhouette counts, lit or not, so a target half
-  in its own shadow keeps the box of its whole outline.
-- "seen": only the pixels the camera can show count: an object pixel counts where it differs from what
-  lies behind it (the sky without its stars, or a farther object), in some colour channel and exposed
-  by the frame's gain, by at least `seen_snr` times the sensor noise there (sky, stray light, black
-  level; before the optics' blur). A face turned from the sun (black, as `ambient` 0 leaves it) is not seen against black
-  space but is seen against a lit planet or a lit target behind it; a target with no seen pixel is
-  hidden in that frame like an occluded one. This is the box a person marking what the image shows
-  would draw.
+- "silhouette" (`SequenceRenderer`'s default, the geometric truth): every pixel of an object's
+  silhouette counts, lit or not, so a target half in its own shadow keeps the box of its whole outline.
+- "seen" (the datasets' default, `conf/data/default.yaml`): only the pixels the camera can show count:
+  an object pixel counts where it differs from what lies behind it (the sky without its stars, or a
+  farther object), in some colour channel and exposed by the frame's gain, by at least `seen_snr` times
+  the sensor noise there (sky, stray light, black level; before the optics' blur). A face turned from
+  the sun (black, as `ambient` 0 leaves it) is not seen against black space but is seen against a lit
+  planet or a lit target behind it; a target with no seen pixel is hidden in that frame like an
+  occluded one. This is the box a person marking what the image shows would draw.
 Both come from the same plan and image: only the labels differ.
 """
 
