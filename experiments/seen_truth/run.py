@@ -49,6 +49,7 @@ from torchvision.ops import box_iou
 from spacetrack import track
 from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.data.layout import load_manifest, read_mot
+from spacetrack.engine.checkpoint import peek_checkpoint
 from spacetrack.io import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
@@ -115,16 +116,15 @@ def trained_on(weights: Path, data_root: Path) -> str:
     (`data_content`); for runs made before runs recorded it, the dataset name they record (their
     settings' `data.truth` is the config default of their day, absent before the key existed, and need
     not be what the dataset was rendered with)."""
-    settings = torch.load(weights, map_location="cpu", weights_only=False)["settings"]
+    settings = peek_checkpoint(weights)["settings"]
     content = settings.get("data_content")
+    if content is None:
+        data = settings["data"]
+        return "seen" if data["name"] == TRUTHS["seen"] else data.get("truth", "silhouette")
     for truth, name in TRUTHS.items():
-        if content is not None and content == load_manifest(data_root / name).get("content_hash"):
+        if content == load_manifest(data_root / name).get("content_hash"):
             return truth
-    if content is not None:
-        raise ValueError(f"{weights}: trained on data content {content}, none of {list(TRUTHS.values())}")
-    return (
-        "seen" if settings["data"]["name"] == TRUTHS["seen"] else settings["data"].get("truth", "silhouette")
-    )
+    raise ValueError(f"{weights}: trained on data content {content}, none of {list(TRUTHS.values())}")
 
 
 def fold_piece(fold: int, weights: Path, variant: str = "yolov5s", data_root: Path = Path("data")) -> dict:
