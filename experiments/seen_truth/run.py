@@ -27,6 +27,8 @@ name of its own:
         --out experiments/detector_cv/seen_truth -- data.name=space_default_seen   # the paper's detector
     python experiments/seen_truth/run.py --folds 3 --variant dwt_hsv_gam \
         --detectors outputs/detector_cv/seen_truth
+    python experiments/seen_truth/run.py --folds 3 --variant dwt_hsv_gam \
+        --detectors outputs/detector_cv/seen_truth --add-rows gam_deepsort_original   # another Table 4 row
 
 Each fold's piece is written as it finishes; `results.md` is rebuilt from every piece present.
 """
@@ -63,6 +65,7 @@ ROWS = {
     "yolov5s": ("yolo_deepsort_paper", "gt_deepsort_paper"),
     "dwt_hsv_gam": ("gam_deepsort_paper", "gt_deepsort_paper"),
 }
+ROW_PREFIX = {"yolov5s": "yolo_", "dwt_hsv_gam": "gam_"}  # Table 4's rows on each variant's detections
 SHRUNK_IOU = 0.5
 
 
@@ -129,7 +132,6 @@ def trained_on(weights: Path, data_root: Path) -> str:
 
 def fold_piece(fold: int, weights: Path, variant: str = "yolov5s", data_root: Path = Path("data")) -> dict:
     """One fold's detector of `variant` (a key of ROWS) scored and tracked against both truths."""
-    rows = _table4_rows()
     out = {
         "fold": fold,
         "variant": variant,
@@ -142,32 +144,51 @@ def fold_piece(fold: int, weights: Path, variant: str = "yolov5s", data_root: Pa
             "train", [*detector_cv.VARIANTS[variant][1], f"fold={fold}", f"data.name={name}"]
         )
         out["detection"][truth] = detector_cv.score(cfg, weights, frame_stride=2)
-        out["tracking"][truth] = {}
-        for row in ROWS[variant]:
-            detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
-            overrides = (
-                rows[row][1]
-                + detector
-                + [
-                    "reid.weights=weights/reid_fold3.pt",
-                    f"fold={fold}",
-                    f"data.name={name}",
-                    f"output_dir=outputs/seen_truth/{truth}/{row}/fold{fold}",
-                    "video=false",
-                    "progress=false",
-                    "logger.experiment=seen_truth",
-                ]
-            )
-            start = time.time()
-            metrics = track.run(compose_config("track", overrides))
-            out["tracking"][truth][row] = {
-                "metrics": {
-                    k: metrics[k] for k in ("mota", "hota", "idf1", "idsw", "fp", "fn") if k in metrics
-                },
-                "command": "python -m spacetrack.track " + " ".join(overrides),
-                "seconds": round(time.time() - start, 1),
-            }
+        out["tracking"][truth] = {row: _track_row(row, fold, truth, weights) for row in ROWS[variant]}
     return out
+
+
+def _track_row(row: str, fold: int, truth: str, weights: Path) -> dict:
+    """Fold `fold` tracked against `truth` with Table 4's row `row` (its detector rows on `weights`)."""
+    detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
+    overrides = (
+        _table4_rows()[row][1]
+        + detector
+        + [
+            "reid.weights=weights/reid_fold3.pt",
+            f"fold={fold}",
+            f"data.name={TRUTHS[truth]}",
+            f"output_dir=outputs/seen_truth/{truth}/{row}/fold{fold}",
+            "video=false",
+            "progress=false",
+            "logger.experiment=seen_truth",
+        ]
+    )
+    start = time.time()
+    metrics = track.run(compose_config("track", overrides))
+    return {
+        "metrics": {k: metrics[k] for k in ("mota", "hota", "idf1", "idsw", "fp", "fn") if k in metrics},
+        "command": "python -m spacetrack.track " + " ".join(overrides),
+        "seconds": round(time.time() - start, 1),
+    }
+
+
+def add_rows(piece: dict, rows: list[str], weights: Path) -> dict:
+    """`piece` with Table 4's `rows` tracked as well, against the truth its detector was trained on (each
+    a row of the piece's detector variant, or of ground-truth boxes); rows it already holds are kept."""
+    prefix = ROW_PREFIX[_variant(piece)]
+    table4 = _table4_rows()
+    for row in rows:
+        if row not in table4 or not row.startswith((prefix, "gt_")):
+            raise ValueError(
+                f"--add-rows {row}: not a Table 4 row of {_variant(piece)} detections or of ground-truth "
+                f"boxes (rows starting {prefix!r} or 'gt_', experiments/table4_mota/run.py)"
+            )
+    truth = piece["trained_on"]
+    for row in rows:
+        if row not in piece["tracking"][truth]:
+            piece["tracking"][truth][row] = _track_row(row, piece["fold"], truth, weights)
+    return piece
 
 
 def write_table() -> Path:
@@ -190,6 +211,7 @@ def write_table() -> Path:
     seen = {v: [p for p in found if p["trained_on"] == "seen" and _variant(p) == v] for v in ROWS}
     for variant in ROWS:
         lines += _seen_section(seen[variant], variant, seen["yolov5s"])
+    lines += _ordering_section([p for v in ROWS for p in seen[v]])
     for trained in TRUTHS:
         pieces = [p for p in plain if p["trained_on"] == trained]
         if pieces:
@@ -318,6 +340,39 @@ def _seen_section(pieces: list[dict], variant: str, plain: list[dict]) -> list[s
     return lines
 
 
+def _ordering_section(pieces: list[dict]) -> list[str]:
+    """The paper's ordering on the seen truth: every Table 4 row the folds' pieces hold (those added with
+    --add-rows besides each variant's own), MOTA % per fold, on the folds that have each row."""
+    by_fold: dict[int, dict[str, float]] = defaultdict(dict)
+    for p in pieces:
+        for row, result in p["tracking"]["seen"].items():
+            by_fold[p["fold"]][row] = 100 * result["metrics"]["mota"]
+    extra = {row for motas in by_fold.values() for row in motas} - {r for rows in ROWS.values() for r in rows}
+    if not extra:
+        return []
+    own = [*dict.fromkeys(r for rows in ROWS.values() for r in rows if not r.startswith("gt_"))]
+    order = sorted(extra, key=lambda r: (not r.endswith("_original"), r)) + own + ["gt_deepsort_paper"]
+    folds = sorted(f for f, motas in by_fold.items() if extra & motas.keys())
+    lines = [
+        "",
+        "## The paper's ordering on the seen truth",
+        "",
+        "MOTA % of each Table 4 row on the folds that have the added rows (- where a fold lacks the row); the",
+        "mean is over the folds that have the row.",
+        "",
+        "| fold | " + " | ".join(order) + " |",
+        "|---|" + "---|" * len(order),
+    ]
+    for fold in folds:
+        lines.append(f"| {fold} | " + " | ".join(
+            f"{by_fold[fold][r]:.1f}" if r in by_fold[fold] else "-" for r in order) + " |")  # fmt: skip
+    means = []
+    for r in order:
+        values = [by_fold[f][r] for f in folds if r in by_fold[f]]
+        means.append(f"{np.mean(values):.1f} ({len(values)})" if values else "-")
+    return lines + ["| mean (folds) | " + " | ".join(means) + " |"]
+
+
 def _cell(piece: dict, group: str) -> str:
     a, b = (piece["detection"][t].get(group) for t in TRUTHS)
     if a is None:
@@ -370,6 +425,10 @@ def main() -> None:
     parser.add_argument("--variant", default="yolov5s", choices=list(ROWS),
                         help="the detector variant (experiments/detector_cv/run.py's name)")  # fmt: skip
     parser.add_argument("--data-root", type=Path, default=Path("data"))
+    parser.add_argument("--add-rows", nargs="+", default=None, metavar="ROW",
+                        help="instead of measuring each fold anew, add these Table 4 rows to its existing "
+                             "piece, tracked against the truth its detector was trained on (e.g. "
+                             "gam_deepsort_original: the paper's ordering)")  # fmt: skip
     args = parser.parse_args()
     for name in TRUTHS.values():
         if not (args.data_root / name / "manifest.json").is_file():
@@ -383,9 +442,20 @@ def main() -> None:
             raise SystemExit(
                 f"{weights} is missing: train fold {fold} first (experiments/detector_cv/run.py)"
             )
-        piece = fold_piece(fold, weights, args.variant, args.data_root)
         infix = "" if args.variant == "yolov5s" else f"_{args.variant}"
-        name = f"{piece['trained_on']}{infix}_fold{fold}.json"
+        if args.add_rows:
+            name = f"{trained_on(weights, args.data_root)}{infix}_fold{fold}.json"
+            if not (HERE / "results" / name).is_file():
+                raise SystemExit(
+                    f"{HERE / 'results' / name} is missing: measure fold {fold} first (no --add-rows)"
+                )
+            piece = json.loads((HERE / "results" / name).read_text())
+            if Path(piece["weights"]) != weights:
+                raise SystemExit(f"{name} measured {piece['weights']}, not {weights}: pass its --detectors")
+            piece = add_rows(piece, args.add_rows, weights)
+        else:
+            piece = fold_piece(fold, weights, args.variant, args.data_root)
+            name = f"{piece['trained_on']}{infix}_fold{fold}.json"
         atomic_write_text(HERE / "results" / name, json.dumps(piece, indent=1) + "\n")
         print(
             f"fold {fold}:", {t: round(piece["detection"][t]["all"]["map50"], 3) for t in TRUTHS}, flush=True

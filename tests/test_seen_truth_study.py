@@ -1,0 +1,83 @@
+"""The silhouette/seen-truth study adds Table 4 rows to a fold's piece only where they belong, keeps what the
+piece holds, and sets the added rows beside the paper's in its table."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from spacetrack.config import REPO_ROOT
+
+spec = importlib.util.spec_from_file_location("seen_truth_study", REPO_ROOT / "experiments/seen_truth/run.py")
+study = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(study)
+
+
+def metrics(mota: float) -> dict:
+    return {"metrics": {"mota": mota, "fp": 1, "fn": 2}, "command": "...", "seconds": 1.0}
+
+
+def piece(fold: int, variant: str, paper: float, gt: float) -> dict:
+    own = study.ROWS[variant]
+    return {
+        "fold": fold,
+        "variant": variant,
+        "weights": f"w/{variant}_fold{fold}.pt",
+        "trained_on": "seen",
+        "detection": {},
+        "tracking": {"silhouette": {}, "seen": {own[0]: metrics(paper), own[1]: metrics(gt)}},
+    }
+
+
+@pytest.fixture
+def tracked(monkeypatch):
+    """_track_row records what it was asked to track and returns a fixed MOTA."""
+    calls = []
+
+    def track_row(row, fold, truth, weights):
+        calls.append((row, fold, truth, str(weights)))
+        return metrics(0.61)
+
+    monkeypatch.setattr(study, "_track_row", track_row)
+    return calls
+
+
+def test_added_rows_are_tracked_against_the_detectors_own_truth_once(tracked):
+    p = piece(2, "dwt_hsv_gam", 0.60, 0.91)
+    p["tracking"]["seen"]["gt_deepsort_original"] = metrics(0.95)
+    study.add_rows(p, ["gam_deepsort_original", "gt_deepsort_original"], Path("w/gam.pt"))
+    # the row it already held is kept, not tracked again
+    assert tracked == [("gam_deepsort_original", 2, "seen", "w/gam.pt")]
+    assert p["tracking"]["seen"]["gam_deepsort_original"]["metrics"]["mota"] == 0.61
+    assert p["tracking"]["seen"]["gt_deepsort_original"]["metrics"]["mota"] == 0.95
+    assert p["tracking"]["silhouette"] == {}
+
+
+@pytest.mark.parametrize("row", ["yolo_deepsort_original", "gam_no_such_row"])
+def test_a_row_of_another_detector_or_no_row_is_refused_before_anything_is_tracked(tracked, row):
+    p = piece(2, "dwt_hsv_gam", 0.60, 0.91)
+    with pytest.raises(ValueError, match=f"--add-rows {row}: not a Table 4 row of dwt_hsv_gam"):
+        study.add_rows(p, ["gam_deepsort_original", row], Path("w/gam.pt"))
+    assert tracked == []
+    assert "gam_deepsort_original" not in p["tracking"]["seen"]
+
+
+def test_ordering_table_sets_the_added_rows_first_and_means_each_over_its_folds(tracked):
+    with_original = piece(1, "dwt_hsv_gam", 0.70, 0.94)
+    study.add_rows(with_original, ["gam_deepsort_original"], Path("w/gam.pt"))
+    plain = piece(1, "yolov5s", 0.72, 0.94)
+    without = piece(2, "dwt_hsv_gam", 0.60, 0.91)
+    lines = study._ordering_section([plain, with_original, without])
+    table = "\n".join(lines)
+    assert (
+        "| fold | gam_deepsort_original | yolo_deepsort_paper | gam_deepsort_paper | gt_deepsort_paper |"
+        in table
+    )
+    # fold 2 has no added row: it is not listed
+    assert "| 1 | 61.0 | 72.0 | 70.0 | 94.0 |" in table
+    assert "| 2 |" not in table
+    assert lines[-1] == "| mean (folds) | 61.0 (1) | 72.0 (1) | 70.0 (1) | 94.0 (1) |"
+    # without any added row there is no such section
+    assert study._ordering_section([plain, without]) == []
