@@ -65,7 +65,6 @@ ROWS = {
     "yolov5s": ("yolo_deepsort_paper", "gt_deepsort_paper"),
     "dwt_hsv_gam": ("gam_deepsort_paper", "gt_deepsort_paper"),
 }
-ROW_PREFIX = {"yolov5s": "yolo_", "dwt_hsv_gam": "gam_"}  # Table 4's rows on each variant's detections
 SHRUNK_IOU = 0.5
 
 
@@ -176,7 +175,7 @@ def _track_row(row: str, fold: int, truth: str, weights: Path) -> dict:
 def add_rows(piece: dict, rows: list[str], weights: Path) -> dict:
     """`piece` with Table 4's `rows` tracked as well, against the truth its detector was trained on (each
     a row of the piece's detector variant, or of ground-truth boxes); rows it already holds are kept."""
-    prefix = ROW_PREFIX[_variant(piece)]
+    prefix = ROWS[_variant(piece)][0].split("_")[0] + "_"  # Table 4's rows on this variant's detections
     table4 = _table4_rows()
     for row in rows:
         if row not in table4 or not row.startswith((prefix, "gt_")):
@@ -347,11 +346,12 @@ def _ordering_section(pieces: list[dict]) -> list[str]:
     for p in pieces:
         for row, result in p["tracking"]["seen"].items():
             by_fold[p["fold"]][row] = 100 * result["metrics"]["mota"]
-    extra = {row for motas in by_fold.values() for row in motas} - {r for rows in ROWS.values() for r in rows}
+    own = dict.fromkeys(r for rows in ROWS.values() for r in rows)  # detector rows first, then ground truth
+    extra = {row for motas in by_fold.values() for row in motas} - own.keys()
     if not extra:
         return []
-    own = [*dict.fromkeys(r for rows in ROWS.values() for r in rows if not r.startswith("gt_"))]
-    order = sorted(extra, key=lambda r: (not r.endswith("_original"), r)) + own + ["gt_deepsort_paper"]
+    own_order = sorted(own, key=lambda r: r.startswith("gt_"))
+    order = sorted(extra, key=lambda r: (not r.endswith("_original"), r)) + own_order
     folds = sorted(f for f, motas in by_fold.items() if extra & motas.keys())
     lines = [
         "",
