@@ -4,6 +4,7 @@ piece holds, and sets the added rows beside the paper's in its table."""
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -33,14 +34,14 @@ def piece(fold: int, variant: str, paper: float, gt: float) -> dict:
 
 @pytest.fixture
 def tracked(monkeypatch):
-    """_track_row records what it was asked to track and returns a fixed MOTA."""
+    """track_row records what it was asked to track and returns a fixed MOTA."""
     calls = []
 
-    def track_row(row, fold, truth, weights):
-        calls.append((row, fold, truth, str(weights)))
+    def track_row(row, fold, truth, weights, reid=None):
+        calls.append((row, fold, truth, str(weights)) + ((str(reid),) if reid else ()))
         return metrics(0.61)
 
-    monkeypatch.setattr(study, "_track_row", track_row)
+    monkeypatch.setattr(study, "track_row", track_row)
     return calls
 
 
@@ -81,3 +82,58 @@ def test_ordering_table_sets_the_added_rows_first_and_means_each_over_its_folds(
     assert lines[-1] == "| mean (folds) | 61.0 (1) | 72.0 (1) | 70.0 (1) | 94.0 (1) |"
     # without any added row there is no such section
     assert study._ordering_section([plain, without]) == []
+
+
+def test_the_seen_pretraining_driver_tracks_each_row_into_its_own_file_and_refuses_other_rows(
+    tmp_path, monkeypatch
+):
+    spec = importlib.util.spec_from_file_location(
+        "seen_pretraining_track", REPO_ROOT / "experiments/detector_cv/seen_pretraining/track.py"
+    )
+    driver = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(driver)
+    calls = []
+
+    class Study:
+        @staticmethod
+        def track_row(row, fold, truth, weights, out, experiment):
+            calls.append((row, fold, truth, out, experiment))
+            return metrics(0.7 if row.endswith("original") else 0.6)
+
+    monkeypatch.setattr(driver, "_seen_truth_study", lambda: Study)
+    monkeypatch.setattr(driver, "HERE", tmp_path)
+    detectors = tmp_path / "det"
+    (detectors / "yolov5s_fold2" / "weights").mkdir(parents=True)
+    (detectors / "yolov5s_fold2" / "weights" / "best.pt").write_bytes(b"w")
+    argv = ["track.py", "--folds", "2", "--detectors", str(detectors)]
+    monkeypatch.setattr("sys.argv", argv)
+    driver.main()
+    assert [c[0] for c in calls] == ["yolo_deepsort_paper", "yolo_deepsort_original"]
+    assert all(c[1:] == (2, "seen", "outputs/seen_pretraining", "seen_pretraining") for c in calls)
+    piece = json.loads((tmp_path / "tracking" / "yolo_deepsort_original_fold2.json").read_text())
+    assert piece["row"] == "yolo_deepsort_original" and piece["metrics"]["mota"] == 0.7
+    monkeypatch.setattr("sys.argv", argv + ["--rows", "gt_deepsort_paper"])
+    with pytest.raises(SystemExit, match="not a Table 4 row on YOLOv5s detections"):
+        driver.main()
+    monkeypatch.setattr("sys.argv", ["track.py", "--folds", "5", "--detectors", str(detectors)])
+    with pytest.raises(SystemExit, match="yolov5s_fold5/weights/best.pt is missing"):
+        driver.main()
+
+
+def test_rows_tracked_with_the_folds_own_reid_are_kept_beside_the_shipped_ones(tracked, tmp_path):
+    p = piece(5, "dwt_hsv_gam", 0.64, 0.93)
+    with pytest.raises(ValueError, match="fold5/reid.pt is missing.*make train-reid FOLD=5"):
+        study.add_rows(p, ["gam_deepsort_paper"], Path("w/gam.pt"), tmp_path)
+    (tmp_path / "fold5").mkdir()
+    (tmp_path / "fold5" / "reid.pt").write_bytes(b"r")
+    study.add_rows(p, ["gam_deepsort_paper", "gt_deepsort_paper"], Path("w/gam.pt"), tmp_path)
+    reid = str(tmp_path / "fold5" / "reid.pt")
+    assert tracked == [
+        ("gam_deepsort_paper", 5, "seen", "w/gam.pt", reid),
+        ("gt_deepsort_paper", 5, "seen", "w/gam.pt", reid),
+    ]
+    rows = p["tracking"]["seen"]
+    assert rows["gam_deepsort_paper"]["metrics"]["mota"] == 0.64  # the shipped re-ID's row is kept
+    assert rows["gam_deepsort_paper+own_reid"]["metrics"]["mota"] == 0.61
+    table = "\n".join(study._ordering_section([p]))
+    assert "gam_deepsort_paper+own_reid" in table and "| 5 |" in table

@@ -66,6 +66,7 @@ ROWS = {
     "dwt_hsv_gam": ("gam_deepsort_paper", "gt_deepsort_paper"),
 }
 SHRUNK_IOU = 0.5
+OWN_REID = "+own_reid"  # suffix of a row tracked with the fold's own re-ID model instead of fold 3's
 
 
 @functools.cache
@@ -143,24 +144,35 @@ def fold_piece(fold: int, weights: Path, variant: str = "yolov5s", data_root: Pa
             "train", [*detector_cv.VARIANTS[variant][1], f"fold={fold}", f"data.name={name}"]
         )
         out["detection"][truth] = detector_cv.score(cfg, weights, frame_stride=2)
-        out["tracking"][truth] = {row: _track_row(row, fold, truth, weights) for row in ROWS[variant]}
+        out["tracking"][truth] = {row: track_row(row, fold, truth, weights) for row in ROWS[variant]}
     return out
 
 
-def _track_row(row: str, fold: int, truth: str, weights: Path) -> dict:
-    """Fold `fold` tracked against `truth` with Table 4's row `row` (its detector rows on `weights`)."""
+def track_row(
+    row: str,
+    fold: int,
+    truth: str,
+    weights: Path,
+    out: str = "outputs/seen_truth",
+    experiment: str = "seen_truth",
+    reid: Path | None = None,
+) -> dict:
+    """Fold `fold` tracked against `truth` with Table 4's row `row` (its detector rows on `weights`), with
+    the re-ID model `reid` (None: fold 3's shipped one); its files go to `<out>/<truth>/<row>/fold<k>`
+    (`<row>_own_reid` with another re-ID), its MLflow run to `experiment`."""
     detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
+    folder = row if reid is None else f"{row}_own_reid"
     overrides = (
         _table4_rows()[row][1]
         + detector
         + [
-            "reid.weights=weights/reid_fold3.pt",
+            f"reid.weights={reid or 'weights/reid_fold3.pt'}",
             f"fold={fold}",
             f"data.name={TRUTHS[truth]}",
-            f"output_dir=outputs/seen_truth/{truth}/{row}/fold{fold}",
+            f"output_dir={out}/{truth}/{folder}/fold{fold}",
             "video=false",
             "progress=false",
-            "logger.experiment=seen_truth",
+            f"logger.experiment={experiment}",
         ]
     )
     start = time.time()
@@ -172,9 +184,11 @@ def _track_row(row: str, fold: int, truth: str, weights: Path) -> dict:
     }
 
 
-def add_rows(piece: dict, rows: list[str], weights: Path) -> dict:
+def add_rows(piece: dict, rows: list[str], weights: Path, reid_dir: Path | None = None) -> dict:
     """`piece` with Table 4's `rows` tracked as well, against the truth its detector was trained on (each
-    a row of the piece's detector variant, or of ground-truth boxes); rows it already holds are kept."""
+    a row of the piece's detector variant, or of ground-truth boxes); rows it already holds are kept.
+    With `reid_dir` each row is tracked with the fold's own re-ID model (`<reid_dir>/fold<k>/reid.pt`,
+    as `make train-reid FOLD=k` writes it) instead of fold 3's shipped one, kept as `<row>+own_reid`."""
     prefix = ROWS[_variant(piece)][0].split("_")[0] + "_"  # Table 4's rows on this variant's detections
     table4 = _table4_rows()
     for row in rows:
@@ -184,9 +198,16 @@ def add_rows(piece: dict, rows: list[str], weights: Path) -> dict:
                 f"boxes (rows starting {prefix!r} or 'gt_', experiments/table4_mota/run.py)"
             )
     truth = piece["trained_on"]
+    reid = None if reid_dir is None else Path(reid_dir) / f"fold{piece['fold']}" / "reid.pt"
+    if reid is not None and not reid.is_file():
+        raise ValueError(
+            f"{reid} is missing: train fold {piece['fold']}'s re-ID model first "
+            f'(make train-reid FOLD={piece["fold"]} ARGS="data.name={TRUTHS[truth]}")'
+        )
     for row in rows:
-        if row not in piece["tracking"][truth]:
-            piece["tracking"][truth][row] = _track_row(row, piece["fold"], truth, weights)
+        key = row if reid is None else row + OWN_REID
+        if key not in piece["tracking"][truth]:
+            piece["tracking"][truth][key] = track_row(row, piece["fold"], truth, weights, reid=reid)
     return piece
 
 
@@ -358,7 +379,8 @@ def _ordering_section(pieces: list[dict]) -> list[str]:
         "## The paper's ordering on the seen truth",
         "",
         "MOTA % of each Table 4 row on the folds that have the added rows (- where a fold lacks the row); the",
-        "mean is over the folds that have the row.",
+        "mean is over the folds that have the row. Rows track with fold 3's shipped re-ID model, those marked",
+        f"`{OWN_REID}` with the fold's own (trained with the fold held out, on the seen truth).",
         "",
         "| fold | " + " | ".join(order) + " |",
         "|---|" + "---|" * len(order),
@@ -429,7 +451,12 @@ def main() -> None:
                         help="instead of measuring each fold anew, add these Table 4 rows to its existing "
                              "piece, tracked against the truth its detector was trained on (e.g. "
                              "gam_deepsort_original: the paper's ordering)")  # fmt: skip
+    parser.add_argument("--own-reid", type=Path, default=None, metavar="DIR",
+                        help="with --add-rows: track with each fold's own re-ID model, DIR/fold<k>/reid.pt "
+                             "(e.g. outputs/train_reid/space_default_seen), kept as <row>+own_reid")  # fmt: skip
     args = parser.parse_args()
+    if args.own_reid is not None and not args.add_rows:
+        raise SystemExit("--own-reid goes with --add-rows: it adds rows to pieces already measured")
     for name in TRUTHS.values():
         if not (args.data_root / name / "manifest.json").is_file():
             raise SystemExit(f"{args.data_root / name} is missing: render it first (see this script's help)")
@@ -452,7 +479,7 @@ def main() -> None:
             piece = json.loads((HERE / "results" / name).read_text())
             if Path(piece["weights"]) != weights:
                 raise SystemExit(f"{name} measured {piece['weights']}, not {weights}: pass its --detectors")
-            piece = add_rows(piece, args.add_rows, weights)
+            piece = add_rows(piece, args.add_rows, weights, args.own_reid)
         else:
             piece = fold_piece(fold, weights, args.variant, args.data_root)
             name = f"{piece['trained_on']}{infix}_fold{fold}.json"

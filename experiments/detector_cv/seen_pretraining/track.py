@@ -1,0 +1,65 @@
+"""Track this study's fold detectors with Table 4's rows on plain YOLOv5s detections, on the seen truth.
+
+Each fold's detector (`outputs/detector_cv/seen_pretraining/yolov5s_fold<k>/weights/best.pt`, made by
+`experiments/detector_cv/run.py --out experiments/detector_cv/seen_pretraining`) tracks the fold's
+validation sequences with each row's settings (`experiments/table4_mota/run.py`) and fold 3's shipped
+re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from the earlier start,
+so the two compare row by row. Each (row, fold) lands in `tracking/<row>_fold<k>.json` at once, with
+its MOTA, HOTA, IDF1, ID switches, false positives, misses and the exact `python -m spacetrack.track`
+command.
+
+    python experiments/detector_cv/seen_pretraining/track.py --folds 2 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+from pathlib import Path
+
+from spacetrack.config import REPO_ROOT
+from spacetrack.io import atomic_write_text
+
+HERE = Path(__file__).resolve().parent
+ROWS = ("yolo_deepsort_paper", "yolo_deepsort_original")
+
+
+def _seen_truth_study():
+    """experiments/seen_truth/run.py, loaded under a module name of its own."""
+    spec = importlib.util.spec_from_file_location(
+        "seen_truth_run", REPO_ROOT / "experiments/seen_truth/run.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--folds", type=int, nargs="+", required=True)
+    parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on YOLOv5s detections")
+    parser.add_argument("--detectors", type=Path, default=Path("outputs/detector_cv/seen_pretraining"))
+    args = parser.parse_args()
+    study = _seen_truth_study()
+    out = HERE / "tracking"
+    out.mkdir(exist_ok=True)
+    for fold in args.folds:
+        weights = args.detectors / f"yolov5s_fold{fold}" / "weights" / "best.pt"
+        if not weights.is_file():
+            raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
+        for row in args.rows:
+            if not row.startswith("yolo_"):
+                raise SystemExit(f"--rows {row}: not a Table 4 row on YOLOv5s detections (yolo_...)")
+            result = study.track_row(
+                row, fold, "seen", weights, out="outputs/seen_pretraining", experiment="seen_pretraining"
+            )
+            piece = {"row": row, "fold": fold, "weights": str(weights), **result}
+            atomic_write_text(out / f"{row}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
+            print(f"fold {fold} {row}: MOTA {result['metrics']['mota']:.3f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
