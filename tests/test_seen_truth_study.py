@@ -135,5 +135,7 @@ def test_rows_tracked_with_the_folds_own_reid_are_kept_beside_the_shipped_ones(t
     rows = p["tracking"]["seen"]
     assert rows["gam_deepsort_paper"]["metrics"]["mota"] == 0.64  # the shipped re-ID's row is kept
     assert rows["gam_deepsort_paper+own_reid"]["metrics"]["mota"] == 0.61
-    table = "\n".join(study._ordering_section([p]))
-    assert "gam_deepsort_paper+own_reid" in table and "| 5 |" in table
+    assert "own_reid" not in "\n".join(study._ordering_section([p]))
+    table = study._own_reid_section([p])
+    assert "| 5 | 64.0 -> 61.0 | 93.0 -> 61.0 |" in table
+    assert "| mean (folds) | 64.0 -> 61.0 (1) | 93.0 -> 61.0 (1) |" in table
