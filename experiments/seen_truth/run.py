@@ -376,24 +376,28 @@ def _ordering_section(pieces: list[dict]) -> list[str]:
     own_order = sorted(own, key=lambda r: r.startswith("gt_"))
     order = sorted(extra, key=lambda r: (not r.endswith("_original"), r)) + own_order
     folds = sorted(f for f, motas in by_fold.items() if extra & motas.keys())
-    lines = [
-        "",
-        "## The paper's ordering on the seen truth",
-        "",
-        "MOTA % of each Table 4 row on the folds that have the added rows (- where a fold lacks the row); the",
-        "mean is over the folds that have the row.",
-        "",
-        "| fold | " + " | ".join(order) + " |",
-        "|---|" + "---|" * len(order),
-    ]
-    for fold in folds:
-        lines.append(f"| {fold} | " + " | ".join(
-            f"{by_fold[fold][r]:.1f}" if r in by_fold[fold] else "-" for r in order) + " |")  # fmt: skip
+    body = [(str(f), [f"{by_fold[f][r]:.1f}" if r in by_fold[f] else "-" for r in order]) for f in folds]
     means = []
     for r in order:
         values = [by_fold[f][r] for f in folds if r in by_fold[f]]
         means.append(f"{np.mean(values):.1f} ({len(values)})" if values else "-")
-    return lines + ["| mean (folds) | " + " | ".join(means) + " |"]
+    intro = [
+        "MOTA % of each Table 4 row on the folds that have the added rows (- where a fold lacks the row); the",
+        "mean is over the folds that have the row.",
+    ]
+    return _fold_table(
+        "The paper's ordering on the seen truth", intro, order, body + [("mean (folds)", means)]
+    )
+
+
+def _fold_table(
+    title: str, intro: list[str], columns: list[str], body: list[tuple[str, list[str]]]
+) -> list[str]:
+    """A section of results.md: its title, its introduction and a table of `columns` by fold, each row of
+    `body` a first cell (a fold, or the mean) and one cell a column."""
+    lines = ["", f"## {title}", "", *intro, ""]
+    lines += ["| fold | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+    return lines + [f"| {first} | " + " | ".join(cells) + " |" for first, cells in body]
 
 
 def _own_reid_section(pieces: list[dict]) -> list[str]:
@@ -409,24 +413,19 @@ def _own_reid_section(pieces: list[dict]) -> list[str]:
     if not pairs:
         return []
     order = sorted({r for found in pairs.values() for r in found}, key=lambda r: (r.startswith("gt_"), r))
-    lines = [
-        "",
-        "## Each fold's own re-ID model",
-        "",
-        "MOTA % with fold 3's shipped re-ID model -> with the fold's own (trained with the fold held out, on",
-        "the seen truth: `make train-reid FOLD=k`), on the folds that have both.",
-        "",
-        "| fold | " + " | ".join(order) + " |",
-        "|---|" + "---|" * len(order),
+    body = [
+        (str(f), [" -> ".join(f"{v:.1f}" for v in pairs[f][r]) if r in pairs[f] else "-" for r in order])
+        for f in sorted(pairs)
     ]
-    for fold in sorted(pairs):
-        cells = [" -> ".join(f"{v:.1f}" for v in pairs[fold][r]) if r in pairs[fold] else "-" for r in order]
-        lines.append(f"| {fold} | " + " | ".join(cells) + " |")
     means = []
     for r in order:
         values = np.array([pairs[f][r] for f in pairs if r in pairs[f]])
         means.append(f"{values[:, 0].mean():.1f} -> {values[:, 1].mean():.1f} ({len(values)})")
-    return lines + ["| mean (folds) | " + " | ".join(means) + " |"]
+    intro = [
+        "MOTA % with fold 3's shipped re-ID model -> with the fold's own (trained with the fold held out, on",
+        "the seen truth: `make train-reid FOLD=k`), on the folds that have both.",
+    ]
+    return _fold_table("Each fold's own re-ID model", intro, order, body + [("mean (folds)", means)])
 
 
 def _cell(piece: dict, group: str) -> str:
