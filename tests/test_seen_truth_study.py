@@ -84,11 +84,11 @@ def test_ordering_table_sets_the_added_rows_first_and_means_each_over_its_folds(
     assert study._ordering_section([plain, without]) == []
 
 
-def test_the_seen_pretraining_driver_tracks_each_row_into_its_own_file_and_refuses_other_rows(
+def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses_other_rows(
     tmp_path, monkeypatch
 ):
     spec = importlib.util.spec_from_file_location(
-        "seen_pretraining_track", REPO_ROOT / "experiments/detector_cv/seen_pretraining/track.py"
+        "detector_study_track", REPO_ROOT / "experiments/detector_cv/track_study.py"
     )
     driver = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(driver)
@@ -105,17 +105,21 @@ def test_the_seen_pretraining_driver_tracks_each_row_into_its_own_file_and_refus
     detectors = tmp_path / "det"
     (detectors / "yolov5s_fold2" / "weights").mkdir(parents=True)
     (detectors / "yolov5s_fold2" / "weights" / "best.pt").write_bytes(b"w")
-    argv = ["track.py", "--folds", "2", "--detectors", str(detectors)]
+    monkeypatch.setattr("sys.argv", ["track.py", "--study", "nowhere", "--folds", "2"])
+    with pytest.raises(SystemExit, match="--study nowhere: .* is not a study folder"):
+        driver.main()
+    (tmp_path / "wider").mkdir()
+    argv = ["track.py", "--study", "wider", "--folds", "2", "--detectors", str(detectors)]
     monkeypatch.setattr("sys.argv", argv)
     driver.main()
     assert [c[0] for c in calls] == ["yolo_deepsort_paper", "yolo_deepsort_original"]
-    assert all(c[1:] == (2, "seen", "outputs/seen_pretraining", "seen_pretraining") for c in calls)
-    piece = json.loads((tmp_path / "tracking" / "yolo_deepsort_original_fold2.json").read_text())
+    assert all(c[1:] == (2, "seen", "outputs/wider", "wider") for c in calls)
+    piece = json.loads((tmp_path / "wider" / "tracking" / "yolo_deepsort_original_fold2.json").read_text())
     assert piece["row"] == "yolo_deepsort_original" and piece["metrics"]["mota"] == 0.7
     monkeypatch.setattr("sys.argv", argv + ["--rows", "gt_deepsort_paper"])
     with pytest.raises(SystemExit, match="not a Table 4 row on YOLOv5s detections"):
         driver.main()
-    monkeypatch.setattr("sys.argv", ["track.py", "--folds", "5", "--detectors", str(detectors)])
+    monkeypatch.setattr("sys.argv", argv[:3] + ["--folds", "5", "--detectors", str(detectors)])
     with pytest.raises(SystemExit, match="yolov5s_fold5/weights/best.pt is missing"):
         driver.main()
 

@@ -1,14 +1,15 @@
-"""Track this study's fold detectors with Table 4's rows on plain YOLOv5s detections, on the seen truth.
+"""Track a detector study's fold detectors with Table 4's rows on plain YOLOv5s detections, seen truth.
 
-Each fold's detector (`outputs/detector_cv/seen_pretraining/yolov5s_fold<k>/weights/best.pt`, made by
-`experiments/detector_cv/run.py --out experiments/detector_cv/seen_pretraining`) tracks the fold's
+A study is a folder `experiments/detector_cv/<study>/` whose folds were trained with
+`experiments/detector_cv/run.py --out experiments/detector_cv/<study>` (weights under
+`outputs/detector_cv/<study>/yolov5s_fold<k>/weights/best.pt`). Each fold's detector tracks the fold's
 validation sequences with each row's settings (`experiments/table4_mota/run.py`) and fold 3's shipped
-re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from the earlier start,
-so the two compare row by row. Each (row, fold) lands in `tracking/<row>_fold<k>.json` at once, with
-its MOTA, HOTA, IDF1, ID switches, false positives, misses and the exact `python -m spacetrack.track`
+re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from the shipped start,
+so the two compare row by row. Each (row, fold) lands in `<study>/tracking/<row>_fold<k>.json` at once,
+with its MOTA, HOTA, IDF1, ID switches, false positives, misses and the exact `python -m spacetrack.track`
 command.
 
-    python experiments/detector_cv/seen_pretraining/track.py --folds 2 3
+    python experiments/detector_cv/track_study.py --study seen_pretraining --folds 2 3
 """
 
 from __future__ import annotations
@@ -39,22 +40,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    parser.add_argument("--study", required=True, help="a folder of experiments/detector_cv")
     parser.add_argument("--folds", type=int, nargs="+", required=True)
     parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on YOLOv5s detections")
-    parser.add_argument("--detectors", type=Path, default=Path("outputs/detector_cv/seen_pretraining"))
+    parser.add_argument("--detectors", type=Path, help="default: outputs/detector_cv/<study>")
     args = parser.parse_args()
+    folder = HERE / args.study
+    if not folder.is_dir():
+        raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
+    detectors = args.detectors or Path("outputs/detector_cv") / args.study
     study = _seen_truth_study()
-    out = HERE / "tracking"
+    out = folder / "tracking"
     out.mkdir(exist_ok=True)
     for fold in args.folds:
-        weights = args.detectors / f"yolov5s_fold{fold}" / "weights" / "best.pt"
+        weights = detectors / f"yolov5s_fold{fold}" / "weights" / "best.pt"
         if not weights.is_file():
             raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
         for row in args.rows:
             if not row.startswith("yolo_"):
                 raise SystemExit(f"--rows {row}: not a Table 4 row on YOLOv5s detections (yolo_...)")
             result = study.track_row(
-                row, fold, "seen", weights, out="outputs/seen_pretraining", experiment="seen_pretraining"
+                row, fold, "seen", weights, out=f"outputs/{args.study}", experiment=args.study
             )
             piece = {"row": row, "fold": fold, "weights": str(weights), **result}
             atomic_write_text(out / f"{row}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
