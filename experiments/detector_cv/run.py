@@ -132,14 +132,20 @@ def matching_run(cfg) -> tuple[str, dict[str, float], Path] | None:
     return None
 
 
-def variant_config(slug: str, fold: int, overrides: list[str], out: Path = HERE):
-    """The `train` config of one variant and fold. Its run folder is outputs/detector_cv/<slug>_fold<k>,
-    or outputs/detector_cv/<out's name>/<slug>_fold<k> for results written elsewhere than here."""
+def run_folder(slug: str, fold: int, out: Path = HERE) -> Path:
+    """The run folder of one variant and fold: outputs/detector_cv/<slug>_fold<k>, or
+    outputs/detector_cv/<out's name>/<slug>_fold<k> for results written elsewhere than here."""
     runs = Path("outputs/detector_cv") / ("" if out.resolve() == HERE else out.name)
+    return runs / f"{slug}_fold{fold}"
+
+
+def variant_config(slug: str, fold: int, overrides: list[str], out: Path = HERE):
+    """The `train` config of one variant and fold, trained in its `run_folder`."""
+    folder = run_folder(slug, fold, out)
     cfg = compose_config(
         "train",
-        [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", f"resume_dirs=[{runs}]",
-         f"output_dir={runs / f'{slug}_fold{fold}'}", *overrides],
+        [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", f"resume_dirs=[{folder.parent}]",
+         f"output_dir={folder}", *overrides],
     )  # fmt: skip
     with open_dict(cfg):
         cfg.cv_parent_run_id = None

@@ -26,14 +26,16 @@ HERE = Path(__file__).resolve().parent
 ROWS = ("yolo_deepsort_paper", "yolo_deepsort_original")
 
 
-def _seen_truth_study():
-    """experiments/seen_truth/run.py, loaded under a module name of its own."""
-    spec = importlib.util.spec_from_file_location(
-        "seen_truth_run", REPO_ROOT / "experiments/seen_truth/run.py"
-    )
+def _script(name: str, path: str):
+    """The experiment script at `path` (from the repository root), loaded as module `name`."""
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _seen_truth_study():
+    return _script("seen_truth_run", "experiments/seen_truth/run.py")
 
 
 def main() -> None:
@@ -48,12 +50,16 @@ def main() -> None:
     folder = HERE / args.study
     if not folder.is_dir():
         raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
-    detectors = args.detectors or Path("outputs/detector_cv") / args.study
+    if args.detectors:
+        runs = {fold: args.detectors / f"yolov5s_fold{fold}" for fold in args.folds}
+    else:  # where experiments/detector_cv/run.py --out <study> trained them
+        cv = _script("detector_cv_run", "experiments/detector_cv/run.py")
+        runs = {fold: cv.run_folder("yolov5s", fold, folder) for fold in args.folds}
     study = _seen_truth_study()
     out = folder / "tracking"
     out.mkdir(exist_ok=True)
     for fold in args.folds:
-        weights = detectors / f"yolov5s_fold{fold}" / "weights" / "best.pt"
+        weights = runs[fold] / "weights" / "best.pt"
         if not weights.is_file():
             raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
         for row in args.rows:
