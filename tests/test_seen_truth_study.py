@@ -84,14 +84,25 @@ def test_ordering_table_sets_the_added_rows_first_and_means_each_over_its_folds(
     assert study._ordering_section([plain, without]) == []
 
 
-def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses_other_rows(
-    tmp_path, monkeypatch
-):
+def study_driver(tmp_path: Path, monkeypatch, study, fold: int):
+    """experiments/detector_cv/track_study.py with `study` for the seen-truth study, its study folders
+    under `tmp_path`, and a detector of `fold` under `tmp_path/det`."""
     spec = importlib.util.spec_from_file_location(
         "detector_study_track", REPO_ROOT / "experiments/detector_cv/track_study.py"
     )
     driver = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(driver)
+    monkeypatch.setattr(driver, "_seen_truth_study", lambda: study)
+    monkeypatch.setattr(driver, "HERE", tmp_path)
+    weights = tmp_path / "det" / f"yolov5s_fold{fold}" / "weights"
+    weights.mkdir(parents=True)
+    (weights / "best.pt").write_bytes(b"w")
+    return driver
+
+
+def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses_other_rows(
+    tmp_path, monkeypatch
+):
     calls = []
 
     class Study:
@@ -100,11 +111,8 @@ def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses
             calls.append((row, fold, truth, out, experiment))
             return metrics(0.7 if row.endswith("original") else 0.6)
 
-    monkeypatch.setattr(driver, "_seen_truth_study", lambda: Study)
-    monkeypatch.setattr(driver, "HERE", tmp_path)
+    driver = study_driver(tmp_path, monkeypatch, Study, fold=2)
     detectors = tmp_path / "det"
-    (detectors / "yolov5s_fold2" / "weights").mkdir(parents=True)
-    (detectors / "yolov5s_fold2" / "weights" / "best.pt").write_bytes(b"w")
     monkeypatch.setattr("sys.argv", ["track.py", "--study", "nowhere", "--folds", "2"])
     with pytest.raises(SystemExit, match="--study nowhere: .* is not a study folder"):
         driver.main()
@@ -143,3 +151,37 @@ def test_rows_tracked_with_the_folds_own_reid_are_kept_beside_the_shipped_ones(t
     table = study._own_reid_section([p])
     assert "| 5 | 64.0 -> 61.0 | 93.0 -> 61.0 |" in table
     assert "| mean (folds) | 64.0 -> 61.0 (1) | 93.0 -> 61.0 (1) |" in table
+
+
+def test_the_gate_study_sets_one_paper_setting_back_at_a_time_into_one_file_per_fold(tmp_path, monkeypatch):
+    calls = []
+
+    class Study:
+        @staticmethod
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder):
+            calls.append((row, fold, extra, folder))
+            return metrics(0.6 + 0.01 * len(extra))
+
+    driver = study_driver(tmp_path, monkeypatch, Study, fold=4)
+    detectors = tmp_path / "det"
+    (tmp_path / "wider").mkdir()
+    argv = ["track.py", "--study", "wider", "--folds", "4", "--detectors", str(detectors), "--gates"]
+    monkeypatch.setattr("sys.argv", argv)
+    driver.main()
+    assert {c[0] for c in calls} == {"yolo_deepsort_paper"} and {c[1] for c in calls} == {4}
+    # the paper's settings first, then each key alone, then the two detection gates together
+    assert [c[2] for c in calls][:3] == [(), ("tracker.min_confidence=0.3",), ("tracker.n_init=3",)]
+    assert calls[-1][2] == ("tracker.min_confidence=0.3", "tracker.n_init=3")
+    # each run its own folder, named without the characters an override value cannot hold
+    folders = [c[3] for c in calls]
+    assert len(set(folders)) == len(folders) and not any("=" in f or "," in f for f in folders)
+    # the conf's paper settings differ from the original's exactly where the study sets them back
+    paper = (REPO_ROOT / "conf/tracker/deepsort_paper.yaml").read_text()
+    for extra in driver.GATES.values():
+        for override in extra:
+            key = override.split(".", 1)[1].split("=")[0]
+            assert f"\n{key}:" in paper
+    piece = json.loads((tmp_path / "wider" / "tracking" / "gates_fold4.json").read_text())
+    assert piece["fold"] == 4 and list(piece["gates"]) == list(driver.GATES)
+    assert piece["gates"]["min_confidence=0.3,n_init=3"]["metrics"]["mota"] == pytest.approx(0.62)
+    assert not (tmp_path / "wider" / "tracking" / "yolo_deepsort_paper_fold4.json").exists()

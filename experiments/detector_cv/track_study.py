@@ -9,7 +9,13 @@ so the two compare row by row. Each (row, fold) lands in `<study>/tracking/<row>
 with its MOTA, HOTA, IDF1, ID switches, false positives, misses and the exact `python -m spacetrack.track`
 command.
 
+With `--gates` each fold is tracked instead with the paper's settings (`yolo_deepsort_paper`) and then with
+each of the keys where they differ from the original DeepSORT settings set back to the original's value,
+one at a time and the two detection gates together: what each of the paper's settings costs or gains on
+that fold's detections, in `<study>/tracking/gates_fold<k>.json`.
+
     python experiments/detector_cv/track_study.py --study seen_pretraining --folds 2 3
+    python experiments/detector_cv/track_study.py --study wider_pretraining --folds 2 --gates
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 from spacetrack.config import REPO_ROOT
@@ -24,6 +31,16 @@ from spacetrack.io import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
 ROWS = ("yolo_deepsort_paper", "yolo_deepsort_original")
+# The paper's settings (conf/tracker/deepsort_paper.yaml) set back to the original's, one change a run.
+GATES = {
+    "paper": (),
+    "min_confidence=0.3": ("tracker.min_confidence=0.3",),
+    "n_init=3": ("tracker.n_init=3",),
+    "max_cosine_distance=0.2": ("tracker.max_cosine_distance=0.2",),
+    "max_iou_distance=0.7": ("tracker.max_iou_distance=0.7",),
+    "nms_max_overlap=0.5": ("tracker.nms_max_overlap=0.5",),
+    "min_confidence=0.3,n_init=3": ("tracker.min_confidence=0.3", "tracker.n_init=3"),
+}
 
 
 def _script(name: str, path: str):
@@ -46,6 +63,7 @@ def main() -> None:
     parser.add_argument("--folds", type=int, nargs="+", required=True)
     parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on YOLOv5s detections")
     parser.add_argument("--detectors", type=Path, help="default: outputs/detector_cv/<study>")
+    parser.add_argument("--gates", action="store_true", help="the paper's settings, one key back at a time")
     args = parser.parse_args()
     folder = HERE / args.study
     if not folder.is_dir():
@@ -62,6 +80,9 @@ def main() -> None:
         weights = runs[fold] / "weights" / "best.pt"
         if not weights.is_file():
             raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
+        if args.gates:
+            track_gates(study, args.study, fold, weights, out)
+            continue
         for row in args.rows:
             if not row.startswith("yolo_"):
                 raise SystemExit(f"--rows {row}: not a Table 4 row on YOLOv5s detections (yolo_...)")
@@ -71,6 +92,21 @@ def main() -> None:
             piece = {"row": row, "fold": fold, "weights": str(weights), **result}
             atomic_write_text(out / f"{row}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
             print(f"fold {fold} {row}: MOTA {result['metrics']['mota']:.3f}", flush=True)
+
+
+def track_gates(study, name: str, fold: int, weights: Path, out: Path) -> None:
+    """Fold `fold` tracked with the paper's settings and with each `GATES` change, into
+    `<out>/gates_fold<k>.json`."""
+    rows = {}
+    for label, extra in GATES.items():
+        result = study.track_row(
+            "yolo_deepsort_paper", fold, "seen", weights, out=f"outputs/{name}", experiment=name,
+            extra=extra, folder="gates/" + re.sub(r"[^a-z0-9_.]+", "_", label),
+        )  # fmt: skip
+        rows[label] = result
+        print(f"fold {fold} paper settings, {label}: MOTA {result['metrics']['mota']:.3f}", flush=True)
+    piece = {"row": "yolo_deepsort_paper", "fold": fold, "weights": str(weights), "gates": rows}
+    atomic_write_text(out / f"gates_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -156,14 +156,18 @@ def track_row(
     out: str = "outputs/seen_truth",
     experiment: str = "seen_truth",
     reid: Path | None = None,
+    extra: tuple[str, ...] = (),
+    folder: str | None = None,
 ) -> dict:
     """Fold `fold` tracked against `truth` with Table 4's row `row` (its detector rows on `weights`), with
-    the re-ID model `reid` (None: fold 3's shipped one); its files go to `<out>/<truth>/<row>/fold<k>`
-    (`<row>_own_reid` with another re-ID), its MLflow run to `experiment`."""
+    the re-ID model `reid` (None: fold 3's shipped one) and the `extra` overrides after the row's own; its
+    files go to `<out>/<truth>/<folder>/fold<k>` (folder default: the row, `<row>_own_reid` with another
+    re-ID), its MLflow run to `experiment`."""
     detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
-    folder = row if reid is None else f"{row}_own_reid"
+    folder = folder or (row if reid is None else f"{row}_own_reid")
     overrides = (
         _table4_rows()[row][1]
+        + list(extra)
         + detector
         + [
             f"reid.weights={reid or 'weights/reid_fold3.pt'}",
