@@ -96,23 +96,30 @@ train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on
 	$(call launch,spacetrack.train,train.trainer.device,train) fold=$(FOLD) $(ARGS)
 
 PRETRAIN_DATA := data/space_pretrain
+PRETRAIN_252 := data/space_pretrain_252
 
 $(PRETRAIN_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data data=pretrain seed=1000
 
-# YOLOv5s + GAM starts from the plain pretrained file: every tensor but the GAM block's
-GAM_PRETRAIN := model=yolov5s_gam enhance=dwt_hsv weights=weights/yolov5s_pretrained.pt weights_partial=true
+$(PRETRAIN_252)/manifest.json: | $(STAMP)
+	$(PY) -m spacetrack.build_data data=pretrain_252 seed=1000
 
-pretrain: $(STAMP) $(PRETRAIN_DATA)/manifest.json ## pretrain YOLOv5s, then YOLOv5s+GAM (DWT/HSV) from it (GPUS=N: on N GPUs) -> weights/*_pretrained.pt; resumable
-	@mkdir -p outputs/pretrain
-ifneq ($(GPUS),)
-	$(call gpu_check,train.trainer.device)
-	$(TORCHRUN) -m spacetrack.pretrain hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s $(ARGS)
-	$(TORCHRUN) -m spacetrack.pretrain $(GAM_PRETRAIN) hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s_gam $(ARGS)
-else
-	$(PY) -m spacetrack.pretrain hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s $(ARGS)
-	$(PY) -m spacetrack.pretrain $(GAM_PRETRAIN) hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_yolov5s_gam $(ARGS)
-endif
+# make pretrain, in three steps (weights/README.md): YOLOv5s from scratch on the 72 training sequences of
+# data/space_pretrain (the first stage, kept in outputs/pretrain/first_stage, made once); YOLOv5s trained
+# further from it on the 216 of data/space_pretrain_252; YOLOv5s + GAM from that file (every tensor but
+# the GAM block's), on the same sequences
+PRETRAIN_FIRST := outputs/pretrain/first_stage/yolov5s_pretrained.pt
+SECOND_STAGE := data=pretrain_252 train=pretrain_252
+GAM_PRETRAIN := $(SECOND_STAGE) model=yolov5s_gam enhance=dwt_hsv weights=weights/yolov5s_pretrained.pt weights_partial=true
+pretrain_run = $(if $(GPUS),$(call gpu_check,train.trainer.device) && $(TORCHRUN),$(PY)) -m spacetrack.pretrain \
+	hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_$(1)
+
+$(PRETRAIN_FIRST): | $(STAMP) $(PRETRAIN_DATA)/manifest.json
+	$(call pretrain_run,yolov5s_first_stage) export_dir=$(dir $(PRETRAIN_FIRST)) $(ARGS)
+
+pretrain: $(STAMP) $(PRETRAIN_FIRST) $(PRETRAIN_252)/manifest.json ## pretrain YOLOv5s in two stages, then YOLOv5s+GAM (DWT/HSV) from it (GPUS=N: on N GPUs) -> weights/*_pretrained.pt; resumable
+	$(call pretrain_run,yolov5s) $(SECOND_STAGE) weights=$(PRETRAIN_FIRST) $(ARGS)
+	$(call pretrain_run,yolov5s_gam) $(GAM_PRETRAIN) $(ARGS)
 
 detector-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## per-fold detector results, plain and improved, per scenario -> experiments/detector_cv (FOLDS="3 4")
 	$(PY) experiments/detector_cv/run.py --folds $(or $(FOLDS),0 1 2 3 4 5 6 7 8) -- $(ARGS)

@@ -48,3 +48,23 @@ def test_pretrain_config_trains_on_the_pretraining_set_from_scratch():
     assert cfg.logger.experiment == "pretrain" and cfg.model.gam_position == "after_sppf"
     assert "slew" in cfg.data.scenario
     assert cfg.data.truth == "silhouette"  # what the shipped pretrained files learnt from
+
+
+def test_second_stage_renders_the_first_stages_scenes_and_more_and_keeps_an_epochs_size():
+    first = compose_config("pretrain")
+    second = compose_config("pretrain", ["data=pretrain_252", "train=pretrain_252"])
+    assert (
+        second.data.name == "space_pretrain_252" and second.data.num_sequences == 3 * first.data.num_sequences
+    )
+    # the same scenes but for their count: with the same seed its first 84 sequences are the first stage's
+    differs = {k for k in first.data if first.data[k] != second.data[k]}
+    assert differs == {"name", "num_sequences"}
+
+    # an epoch holds as many windows as the first stage's: training sequences x frames / stride
+    def windows(cfg):
+        training = cfg.data.num_sequences * (cfg.data.num_folds - 1) // cfg.data.num_folds
+        return training * (cfg.data.num_frames // cfg.train.frame_stride)
+
+    assert windows(first) == windows(second) == 5400
+    assert second.train.trainer.epochs == 12 and second.weights == "none"  # make pretrain passes the start
+    assert second.train.image_size == first.train.image_size and second.train.input == "crops"

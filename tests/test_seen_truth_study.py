@@ -125,11 +125,24 @@ def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses
     piece = json.loads((tmp_path / "wider" / "tracking" / "yolo_deepsort_original_fold2.json").read_text())
     assert piece["row"] == "yolo_deepsort_original" and piece["metrics"]["mota"] == 0.7
     monkeypatch.setattr("sys.argv", argv + ["--rows", "gt_deepsort_paper"])
-    with pytest.raises(SystemExit, match="not a Table 4 row on YOLOv5s detections"):
+    with pytest.raises(SystemExit, match="not a Table 4 row on a study's detector boxes"):
         driver.main()
     monkeypatch.setattr("sys.argv", argv[:3] + ["--folds", "5", "--detectors", str(detectors)])
     with pytest.raises(SystemExit, match="yolov5s_fold5/weights/best.pt is missing"):
         driver.main()
+    # a gam_ row tracks the study's YOLOv5s + GAM on DWT/HSV detector, refused before any row is tracked
+    # while that detector is missing
+    calls.clear()
+    monkeypatch.setattr("sys.argv", argv + ["--rows", "yolo_deepsort_paper", "gam_deepsort_paper"])
+    with pytest.raises(SystemExit, match="dwt_hsv_gam_fold2/weights/best.pt is missing"):
+        driver.main()
+    assert calls == []
+    (detectors / "dwt_hsv_gam_fold2" / "weights").mkdir(parents=True)
+    (detectors / "dwt_hsv_gam_fold2" / "weights" / "best.pt").write_bytes(b"g")
+    driver.main()
+    assert [c[0] for c in calls] == ["yolo_deepsort_paper", "gam_deepsort_paper"]
+    piece = json.loads((tmp_path / "wider" / "tracking" / "gam_deepsort_paper_fold2.json").read_text())
+    assert piece["weights"].endswith("dwt_hsv_gam_fold2/weights/best.pt")
 
 
 def test_rows_tracked_with_the_folds_own_reid_are_kept_beside_the_shipped_ones(tracked, tmp_path):

@@ -1,8 +1,10 @@
-"""Track a detector study's fold detectors with Table 4's rows on plain YOLOv5s detections, seen truth.
+"""Track a detector study's fold detectors with Table 4's rows on their detections, seen truth.
 
 A study is a folder `experiments/detector_cv/<study>/` whose folds were trained with
 `experiments/detector_cv/run.py --out experiments/detector_cv/<study>` (weights under
-`outputs/detector_cv/<study>/yolov5s_fold<k>/weights/best.pt`). Each fold's detector tracks the fold's
+`outputs/detector_cv/<study>/<variant>_fold<k>/weights/best.pt`): the `yolo_...` rows track plain
+YOLOv5s (`yolov5s`), the `gam_...` rows YOLOv5s + GAM on DWT/HSV (`dwt_hsv_gam`). Each fold's detector
+tracks the fold's
 validation sequences with each row's settings (`experiments/table4_mota/run.py`) and fold 3's shipped
 re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from the shipped start,
 so the two compare row by row. Each (row, fold) lands in `<study>/tracking/<row>_fold<k>.json` at once,
@@ -15,6 +17,7 @@ one at a time and the two detection gates together: what each of the paper's set
 that fold's detections, in `<study>/tracking/gates_fold<k>.json`.
 
     python experiments/detector_cv/track_study.py --study seen_pretraining --folds 2 3
+    python experiments/detector_cv/track_study.py --study wider_pretraining --folds 3 --rows gam_deepsort_paper
     python experiments/detector_cv/track_study.py --study wider_pretraining --folds 2 --gates
 """
 
@@ -31,6 +34,8 @@ from spacetrack.io import atomic_write_text
 
 HERE = Path(__file__).resolve().parent
 ROWS = ("yolo_deepsort_paper", "yolo_deepsort_original")
+# A row's detector (its name's first word) -> the variant of experiments/detector_cv/run.py trained for it.
+DETECTORS = {"yolo": "yolov5s", "gam": "dwt_hsv_gam"}
 # The paper's settings (conf/tracker/deepsort_paper.yaml) set back to the original's, one change a run.
 GATES = {
     "paper": (),
@@ -61,31 +66,41 @@ def main() -> None:
     )
     parser.add_argument("--study", required=True, help="a folder of experiments/detector_cv")
     parser.add_argument("--folds", type=int, nargs="+", required=True)
-    parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on YOLOv5s detections")
+    parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on detector boxes")
     parser.add_argument("--detectors", type=Path, help="default: outputs/detector_cv/<study>")
     parser.add_argument("--gates", action="store_true", help="the paper's settings, one key back at a time")
     args = parser.parse_args()
     folder = HERE / args.study
     if not folder.is_dir():
         raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
-    if args.detectors:
-        runs = {fold: args.detectors / f"yolov5s_fold{fold}" for fold in args.folds}
-    else:  # where experiments/detector_cv/run.py --out <study> trained them
-        cv = _script("detector_cv_run", "experiments/detector_cv/run.py")
-        runs = {fold: cv.run_folder("yolov5s", fold, folder) for fold in args.folds}
+    rows = ["yolo_deepsort_paper"] if args.gates else args.rows
+    for row in rows:
+        if row.split("_")[0] not in DETECTORS:
+            raise SystemExit(
+                f"--rows {row}: not a Table 4 row on a study's detector boxes (yolo_... or gam_...)"
+            )
+    cv = _script("detector_cv_run", "experiments/detector_cv/run.py")
+
+    def weights_of(row: str, fold: int) -> Path:
+        slug = DETECTORS[row.split("_")[0]]
+        run = args.detectors / f"{slug}_fold{fold}" if args.detectors else cv.run_folder(slug, fold, folder)
+        weights = run / "weights" / "best.pt"
+        if not weights.is_file():
+            raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
+        return weights
+
+    for fold in args.folds:  # every detector present before anything is tracked
+        for row in rows:
+            weights_of(row, fold)
     study = _seen_truth_study()
     out = folder / "tracking"
     out.mkdir(exist_ok=True)
     for fold in args.folds:
-        weights = runs[fold] / "weights" / "best.pt"
-        if not weights.is_file():
-            raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
         if args.gates:
-            track_gates(study, args.study, fold, weights, out)
+            track_gates(study, args.study, fold, weights_of(rows[0], fold), out)
             continue
-        for row in args.rows:
-            if not row.startswith("yolo_"):
-                raise SystemExit(f"--rows {row}: not a Table 4 row on YOLOv5s detections (yolo_...)")
+        for row in rows:
+            weights = weights_of(row, fold)
             result = study.track_row(
                 row, fold, "seen", weights, out=f"outputs/{args.study}", experiment=args.study
             )
