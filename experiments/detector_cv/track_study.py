@@ -4,10 +4,9 @@ A study is a folder `experiments/detector_cv/<study>/` whose folds were trained 
 `experiments/detector_cv/run.py --out experiments/detector_cv/<study>` (weights under
 `outputs/detector_cv/<study>/<variant>_fold<k>/weights/best.pt`): the `yolo_...` rows track plain
 YOLOv5s (`yolov5s`), the `gam_...` rows YOLOv5s + GAM on DWT/HSV (`dwt_hsv_gam`). Each fold's detector
-tracks the fold's
-validation sequences with each row's settings (`experiments/table4_mota/run.py`) and fold 3's shipped
-re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from the shipped start,
-so the two compare row by row. Each (row, fold) lands in `<study>/tracking/<row>_fold<k>.json` at once,
+tracks the fold's validation sequences with each row's settings (`experiments/table4_mota/run.py`) and
+fold 3's shipped re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from
+the first pretraining stage, so the two compare row by row. Each (row, fold) lands in `<study>/tracking/<row>_fold<k>.json` at once,
 with its MOTA, HOTA, IDF1, ID switches, false positives, misses and the exact `python -m spacetrack.track`
 command.
 
