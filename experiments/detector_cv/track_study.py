@@ -28,6 +28,8 @@ import json
 import re
 from pathlib import Path
 
+from omegaconf import OmegaConf
+
 from spacetrack.config import REPO_ROOT
 from spacetrack.io import atomic_write_text
 
@@ -35,15 +37,18 @@ HERE = Path(__file__).resolve().parent
 ROWS = ("yolo_deepsort_paper", "yolo_deepsort_original")
 # A row's detector (its name's first word) -> the variant of experiments/detector_cv/run.py trained for it.
 DETECTORS = {"yolo": "yolov5s", "gam": "dwt_hsv_gam"}
-# The paper's settings (conf/tracker/deepsort_paper.yaml) set back to the original's, one change a run.
+# The paper's settings (conf/tracker/deepsort_paper.yaml) set back to the original's, one change a run;
+# the original values are read from conf/tracker/deepsort_original.yaml.
+_ORIGINAL = OmegaConf.load(REPO_ROOT / "conf/tracker/deepsort_original.yaml")
+_GATE_KEYS = (
+    (), ("min_confidence",), ("n_init",), ("max_cosine_distance",), ("max_iou_distance",),
+    ("nms_max_overlap",), ("min_confidence", "n_init"),
+)  # fmt: skip
 GATES = {
-    "paper": (),
-    "min_confidence=0.3": ("tracker.min_confidence=0.3",),
-    "n_init=3": ("tracker.n_init=3",),
-    "max_cosine_distance=0.2": ("tracker.max_cosine_distance=0.2",),
-    "max_iou_distance=0.7": ("tracker.max_iou_distance=0.7",),
-    "nms_max_overlap=0.5": ("tracker.nms_max_overlap=0.5",),
-    "min_confidence=0.3,n_init=3": ("tracker.min_confidence=0.3", "tracker.n_init=3"),
+    (",".join(f"{k}={_ORIGINAL[k]}" for k in keys) or "paper"): tuple(
+        f"tracker.{k}={_ORIGINAL[k]}" for k in keys
+    )
+    for keys in _GATE_KEYS
 }
 
 
@@ -88,22 +93,20 @@ def main() -> None:
             raise SystemExit(f"{weights} is missing: train fold {fold} first (see README.md)")
         return weights
 
-    for fold in args.folds:  # every detector present before anything is tracked
-        for row in rows:
-            weights_of(row, fold)
+    # every detector present before anything is tracked
+    weights = {(row, fold): weights_of(row, fold) for fold in args.folds for row in rows}
     study = _seen_truth_study()
     out = folder / "tracking"
     out.mkdir(exist_ok=True)
     for fold in args.folds:
         if args.gates:
-            track_gates(study, args.study, fold, weights_of(rows[0], fold), out)
+            track_gates(study, args.study, fold, weights[rows[0], fold], out)
             continue
         for row in rows:
-            weights = weights_of(row, fold)
             result = study.track_row(
-                row, fold, "seen", weights, out=f"outputs/{args.study}", experiment=args.study
+                row, fold, "seen", weights[row, fold], out=f"outputs/{args.study}", experiment=args.study
             )
-            piece = {"row": row, "fold": fold, "weights": str(weights), **result}
+            piece = {"row": row, "fold": fold, "weights": str(weights[row, fold]), **result}
             atomic_write_text(out / f"{row}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
             print(f"fold {fold} {row}: MOTA {result['metrics']['mota']:.3f}", flush=True)
 
