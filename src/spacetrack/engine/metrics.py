@@ -26,21 +26,32 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def match_detections(
+    *boxes_scores_classes: np.ndarray, iou_thresholds: np.ndarray = IOU_THRESHOLDS
+) -> np.ndarray:
+    """(num_pred, num_thresholds) bool: is each detection a true positive at each IoU threshold?
+
+    Arguments as `claimed_targets`'s: detections are taken in descending score order; each claims the
+    unclaimed ground-truth box of its class with the highest IoU at or above the threshold (one image
+    at a time).
+    """
+    return claimed_targets(*boxes_scores_classes, iou_thresholds=iou_thresholds) >= 0
+
+
+def claimed_targets(
     pred_boxes: np.ndarray,
     pred_scores: np.ndarray,
     pred_classes: np.ndarray,
     gt_boxes: np.ndarray,
     gt_classes: np.ndarray,
+    *,
     iou_thresholds: np.ndarray = IOU_THRESHOLDS,
 ) -> np.ndarray:
-    """(num_pred, num_thresholds) bool: is each detection a true positive at each IoU threshold?
-
-    Detections are taken in descending score order; each claims the unclaimed ground-truth box of
-    its class with the highest IoU at or above the threshold (one image at a time).
-    """
-    tp = np.zeros((len(pred_boxes), len(iou_thresholds)), dtype=bool)
+    """(num_pred, num_thresholds) int: the index of the ground-truth box each detection claims at each
+    IoU threshold, -1 for none (the matching `match_detections` describes): pred boxes (n, 4) xyxy,
+    scores (n,), classes (n,); ground-truth boxes (m, 4) xyxy, classes (m,)."""
+    claims = np.full((len(pred_boxes), len(iou_thresholds)), -1, dtype=np.int64)
     if len(pred_boxes) == 0 or len(gt_boxes) == 0:
-        return tp
+        return claims
     iou = box_iou(pred_boxes, gt_boxes) * (pred_classes[:, None] == gt_classes[None, :])
     claimed = np.zeros((len(iou_thresholds), len(gt_boxes)), dtype=bool)
     for i in np.argsort(-pred_scores, kind="stable"):
@@ -49,9 +60,9 @@ def match_detections(
         candidates = np.where((iou[i][None, :] >= iou_thresholds[:, None]) & ~claimed, iou[i][None, :], -1.0)
         best = candidates.argmax(axis=1)
         hit = candidates[np.arange(len(iou_thresholds)), best] >= 0
-        tp[i, hit] = True
+        claims[i, hit] = best[hit]
         claimed[np.flatnonzero(hit), best[hit]] = True
-    return tp
+    return claims
 
 
 def interpolated_ap(recall: np.ndarray, precision: np.ndarray) -> float:
