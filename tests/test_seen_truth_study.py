@@ -107,7 +107,8 @@ def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses
 
     class Study:
         @staticmethod
-        def track_row(row, fold, truth, weights, out, experiment):
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder):
+            assert extra == () and folder == row  # Table 4's row as it is, in its own folder
             calls.append((row, fold, truth, out, experiment))
             return metrics(0.7 if row.endswith("original") else 0.6)
 
@@ -198,3 +199,36 @@ def test_the_gate_study_sets_one_paper_setting_back_at_a_time_into_one_file_per_
     assert piece["fold"] == 4 and list(piece["gates"]) == list(driver.GATES)
     assert piece["gates"]["min_confidence=0.3,n_init=3"]["metrics"]["mota"] == pytest.approx(0.62)
     assert not (tmp_path / "wider" / "tracking" / "yolo_deepsort_paper_fold4.json").exists()
+
+
+def test_a_labelled_setting_is_tracked_after_each_rows_own_into_files_of_its_own(tmp_path, monkeypatch):
+    calls = []
+
+    class Study:
+        @staticmethod
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder):
+            calls.append((row, extra, folder))
+            return metrics(0.65)
+
+    driver = study_driver(tmp_path, monkeypatch, Study, fold=3)
+    (tmp_path / "wider").mkdir()
+    argv = ["track.py", "--study", "wider", "--folds", "3", "--detectors", str(tmp_path / "det")]
+    for bad in (["--set", "objectness"], ["--set", "Obj ness", "detector.score=objectness"],
+                ["--set", "objectness", "detector.score"]):  # fmt: skip
+        monkeypatch.setattr("sys.argv", argv + bad)
+        with pytest.raises(SystemExit, match="--set .*: give a label"):
+            driver.main()
+    monkeypatch.setattr("sys.argv", argv + ["--gates", "--set", "objectness", "detector.score=objectness"])
+    with pytest.raises(SystemExit, match="one at a time"):
+        driver.main()
+    assert calls == []
+    monkeypatch.setattr("sys.argv", argv + ["--rows", "yolo_deepsort_paper", "--set", "objectness",
+                                            "detector.score=objectness"])  # fmt: skip
+    driver.main()
+    assert calls == [
+        ("yolo_deepsort_paper", ("detector.score=objectness",), "yolo_deepsort_paper_objectness")
+    ]
+    tracking = tmp_path / "wider" / "tracking"
+    piece = json.loads((tracking / "yolo_deepsort_paper_objectness_fold3.json").read_text())
+    assert piece["row"] == "yolo_deepsort_paper" and piece["extra"] == ["detector.score=objectness"]
+    assert not (tracking / "yolo_deepsort_paper_fold3.json").exists()  # Table 4's own row untouched

@@ -15,9 +15,14 @@ each of the keys where they differ from the original DeepSORT settings set back 
 one at a time and the two detection gates together: what each of the paper's settings costs or gains on
 that fold's detections, in `<study>/tracking/gates_fold<k>.json`.
 
+With `--set LABEL OVERRIDE...` each row is tracked with those overrides after its own (a setting beyond
+Table 4's, such as `detector.score=objectness`), into `<study>/tracking/<row>_<LABEL>_fold<k>.json`.
+
     python experiments/detector_cv/track_study.py --study seen_pretraining --folds 2 3
     python experiments/detector_cv/track_study.py --study wider_pretraining --folds 3 --rows gam_deepsort_paper
     python experiments/detector_cv/track_study.py --study wider_pretraining --folds 2 --gates
+    python experiments/detector_cv/track_study.py --study wider_pretraining --folds 3 --rows gam_deepsort_paper \
+        --set objectness detector.score=objectness
 """
 
 from __future__ import annotations
@@ -73,7 +78,17 @@ def main() -> None:
     parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on detector boxes")
     parser.add_argument("--detectors", type=Path, help="default: outputs/detector_cv/<study>")
     parser.add_argument("--gates", action="store_true", help="the paper's settings, one key back at a time")
+    parser.add_argument(
+        "--set", nargs="+", metavar=("LABEL", "OVERRIDE"), help="a label, then overrides after each row's own"
+    )
     args = parser.parse_args()
+    label, extra = (args.set[0], tuple(args.set[1:])) if args.set else ("", ())
+    if args.set and (not re.fullmatch(r"[a-z0-9_]+", label) or not extra or not all("=" in e for e in extra)):
+        raise SystemExit(
+            f"--set {' '.join(args.set)}: give a label of a-z, 0-9 and _, then KEY=VALUE overrides"
+        )
+    if args.set and args.gates:
+        raise SystemExit("--set and --gates: one at a time")
     folder = HERE / args.study
     if not folder.is_dir():
         raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
@@ -103,12 +118,16 @@ def main() -> None:
             track_gates(study, args.study, fold, weights[rows[0], fold], out)
             continue
         for row in rows:
+            name = f"{row}_{label}" if label else row
             result = study.track_row(
-                row, fold, "seen", weights[row, fold], out=f"outputs/{args.study}", experiment=args.study
-            )
+                row, fold, "seen", weights[row, fold], out=f"outputs/{args.study}", experiment=args.study,
+                extra=extra, folder=name,
+            )  # fmt: skip
             piece = {"row": row, "fold": fold, "weights": str(weights[row, fold]), **result}
-            atomic_write_text(out / f"{row}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
-            print(f"fold {fold} {row}: MOTA {result['metrics']['mota']:.3f}", flush=True)
+            if extra:
+                piece["extra"] = list(extra)
+            atomic_write_text(out / f"{name}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
+            print(f"fold {fold} {name}: MOTA {result['metrics']['mota']:.3f}", flush=True)
 
 
 def track_gates(study, name: str, fold: int, weights: Path, out: Path) -> None:
