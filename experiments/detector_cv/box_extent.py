@@ -30,12 +30,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from torch.utils.data import DataLoader
 
-from spacetrack.data.frame_store import FrameStore
-from spacetrack.data.layout import load_manifest, split_sequences
-from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
+from spacetrack.data.yolo_dataset import collate
 from spacetrack.engine.boxes import xywh_to_xyxy
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.metrics import box_iou, claimed_targets
@@ -124,28 +121,17 @@ def summarise(parts: list[dict]) -> dict:
 def study_piece(cfg, weights: Path, frame_stride: int) -> dict[str, list[dict]]:
     """Per scenario the `classify` result of each validation frame of `cfg.fold` (every
     `frame_stride`-th, as `run.score` takes them)."""
-    root = Path(cfg.data_root) / cfg.data.name
-    manifest = load_manifest(root)
-    _, val_names = split_sequences(manifest, cfg.fold)
-    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
     model = load_detector(weights).eval()
-    enhancer = instantiate(cfg.enhance)
-    image_dir, on_the_fly = image_source(root, val_names, enhancer.name)
-    store = FrameStore(root=root, image_dir=image_dir, enhancer=enhancer if on_the_fly else None,
-                       enhancer_name=enhancer.name)  # fmt: skip
     out: dict[str, list[dict]] = {}
-    for name in val_names:
-        data = YoloDataset(root=root, sequences=[name], num_classes=len(manifest["class_names"]),
-                           store=store, frame_stride=frame_stride)  # fmt: skip
+    for name, data in cv.validation_sets(cfg, frame_stride)[1].items():
         for images, targets in DataLoader(data, batch_size=4, collate_fn=collate):
             x = images.to(model.stride.device).float() / 255
-            detections = non_max_suppression(model.detect.decode(model(x)), conf_threshold=0.001,
-                                             iou_threshold=0.6, max_det=300)  # fmt: skip
+            detections = non_max_suppression(model.detect.decode(model(x)), **cv.NMS)
             size = torch.tensor(x.shape[2:][::-1] * 2, dtype=torch.float32)
             for i, det in enumerate(detections):
                 mine = targets[targets[:, 0] == i]
                 gt = (xywh_to_xyxy(mine[:, 2:6]) * size).numpy()
-                out.setdefault(scenario[name], []).append(classify(det.cpu().numpy(), gt, mine[:, 1].numpy()))
+                out.setdefault(name, []).append(classify(det.cpu().numpy(), gt, mine[:, 1].numpy()))
     return out
 
 

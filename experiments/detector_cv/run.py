@@ -47,6 +47,8 @@ VARIANTS = {
     "dwt_hsv_gam": ("+DWT/HSV +GAM", ["model=yolov5s_gam", "enhance=dwt_hsv"]),
 }
 METRICS = ("map50", "map50_95", "recall_at_score")
+# The detections a detector is scored on: every box above a low score, YOLOv5's validation NMS.
+NMS = {"conf_threshold": 0.001, "iou_threshold": 0.6, "max_det": 300}
 # The same with every class as one (a box found by a detection of any class: what the tracker follows),
 # named with this suffix; pieces scored before it was added lack them.
 ANY = "_any"
@@ -62,30 +64,41 @@ NEUTRAL = ("threads", "device", "workers", "channels_last")
 ADDED_LATER = {"train.trainer.sync_bn": "False"}
 
 
-def score(cfg, weights: Path, frame_stride: int) -> dict:
-    """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario, and the
-    confusion matrix over all of them (`evaluate`'s: row true class, column predicted, plus background and
-    missed)."""
+def validation_sets(cfg, frame_stride: int) -> tuple[list[str], dict[str, YoloDataset]]:
+    """(class names, {scenario: its validation sequences of `cfg.fold` as one dataset}), scenarios sorted,
+    every `frame_stride`-th frame, enhanced as `cfg.enhance` says."""
     root = Path(cfg.data_root) / cfg.data.name
     manifest = load_manifest(root)
     _, val_names = split_sequences(manifest, cfg.fold)
     scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
-    model = load_detector(weights)
     enhancer = instantiate(cfg.enhance)
     image_dir, on_the_fly = image_source(root, val_names, enhancer.name)
     store = FrameStore(root=root, image_dir=image_dir, enhancer=enhancer if on_the_fly else None,
                        enhancer_name=enhancer.name)  # fmt: skip
-    groups = {
-        name: [v for v in val_names if scenario[v] == name]
+    classes = list(manifest["class_names"])
+    sets = {
+        name: YoloDataset(
+            root=root,
+            sequences=[v for v in val_names if scenario[v] == name],
+            num_classes=len(classes),
+            store=store,
+            frame_stride=frame_stride,
+        )  # fmt: skip
         for name in sorted({scenario[v] for v in val_names})
     }
+    return classes, sets
+
+
+def score(cfg, weights: Path, frame_stride: int) -> dict:
+    """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario, and the
+    confusion matrix over all of them (`evaluate`'s: row true class, column predicted, plus background and
+    missed)."""
+    model = load_detector(weights)
+    classes, sets = validation_sets(cfg, frame_stride)
     out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, []
-    for group, names in groups.items():
-        data = YoloDataset(root=root, sequences=names, num_classes=len(manifest["class_names"]),
-                           store=store, frame_stride=frame_stride)  # fmt: skip
+    for group, data in sets.items():
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
-        _, details = evaluate(model, loader, device=model.stride.device, conf_threshold=0.001,
-                              iou_threshold=0.6, max_det=300, class_agnostic=True,
+        _, details = evaluate(model, loader, device=model.stride.device, **NMS, class_agnostic=True,
                               multi_label=True)  # fmt: skip
         for kind in KINDS:
             pooled[kind].append(details[kind])
@@ -94,7 +107,7 @@ def score(cfg, weights: Path, frame_stride: int) -> dict:
         confusion.append(details["confusion"])
     # "all": the scenarios' matches pooled, one mAP over every frame (not a mean of the scenarios')
     joined = {kind: [np.concatenate(a) for a in zip(*parts, strict=True)] for kind, parts in pooled.items()}
-    counts = {"classes": list(manifest["class_names"]), "counts": np.sum(confusion, axis=0).tolist()}
+    counts = {"classes": classes, "counts": np.sum(confusion, axis=0).tolist()}
     return {"all": summary(joined) | {"frames": frames}, "confusion": counts} | out
 
 
