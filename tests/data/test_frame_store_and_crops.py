@@ -49,6 +49,24 @@ def test_store_caches_enhanced_frames_apart(smoke_dataset, store):
     assert np.array_equal(inverted.frames(seq)[0], 255 - store.frames(seq)[0])
 
 
+def test_strided_store_holds_every_kth_frame_apart_and_refuses_the_others(smoke_dataset, store):
+    seq = sequences(smoke_dataset)[0]
+    paths = frame_paths(smoke_dataset, seq)
+    every3 = FrameStore(root=smoke_dataset, cache_dir=store.folder.parent, frame_stride=3, progress=False)
+    assert every3.folder != store.folder
+    assert len(every3.frames(seq)) == len(paths[::3])
+    assert np.array_equal(every3.frame(seq, 6), read_rgb(paths[6]))
+    assert np.array_equal(every3.frame(seq, 6), store.frame(seq, 6))
+    with pytest.raises(ValueError, match=f"frame 4 of {seq} is not cached.*frames 0, 3, 6, ... only"):
+        every3.frame(seq, 4)
+    # samples of a stride the store serves read the same pixels as from a whole store
+    strided = YoloDataset(root=smoke_dataset, sequences=[seq], num_classes=3, store=every3, frame_stride=6)
+    whole = YoloDataset(root=smoke_dataset, sequences=[seq], num_classes=3, store=store, frame_stride=6)
+    assert np.array_equal(strided.image(2), whole.image(2))
+    with pytest.raises(ValueError, match="frame_stride must be a whole number >= 1, got 0"):
+        FrameStore(root=smoke_dataset, cache_dir=store.folder.parent, frame_stride=0)
+
+
 def test_unreadable_frame_is_named_and_leaves_no_cache(smoke_dataset, tmp_path):
     seq = sequences(smoke_dataset)[0]
     copy = tmp_path / "copy"

@@ -102,7 +102,7 @@ class CropDataset(Dataset):
     def window(self, index: int, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """A size x size window of sample `index`'s frame and its labels, placed by `rng`."""
         seq, frame, _, labels = self.samples[index]
-        image = self.store.frames(seq)[frame]
+        image = self.store.frame(seq, frame)
         height, width = image.shape[:2]
         if len(labels) and rng.random() >= self.background:
             _, cx, cy, _, _ = labels[rng.integers(len(labels))]

@@ -191,7 +191,7 @@ class YoloDataset(Dataset):
         """The RGB uint8 frame of sample `index` as stored (enhanced when the dataset enhances)."""
         seq, frame, path, _ = self.samples[index]
         if self.store is not None:
-            return np.asarray(self.store.frames(seq)[frame])
+            return np.asarray(self.store.frame(seq, frame))
         image = read_rgb(path)
         return image if self.enhancer is None else self.enhancer(image)
 

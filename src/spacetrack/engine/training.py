@@ -9,6 +9,7 @@ SLURM job of N tasks) the N processes train one model with DistributedDataParall
 
 from __future__ import annotations
 
+import math
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from functools import partial
@@ -42,12 +43,19 @@ def build_datasets(
 ) -> tuple[CropDataset | YoloDataset, YoloDataset]:
     """(training, validation) data of `cfg.train`: native-resolution crops or letterboxed whole frames
     for training; whole frames at `val_image_size` (null: native) for validation. Frames are decoded
-    (and enhanced) once into a `FrameStore` when `cache_frames` is on."""
+    (and enhanced) once into a `FrameStore` when `cache_frames` is on; it holds only the frames the two
+    strides read (every gcd(frame_stride, val_frame_stride)-th)."""
     image_dir, enhance_on_the_fly = image_source(root, train_names + val_names, enhancer.name)
     on_the_fly = enhancer if enhance_on_the_fly else None
     store = None
     if cfg.train.cache_frames:
-        store = FrameStore(root=root, image_dir=image_dir, enhancer=on_the_fly, enhancer_name=enhancer.name)
+        store = FrameStore(
+            root=root,
+            image_dir=image_dir,
+            enhancer=on_the_fly,
+            enhancer_name=enhancer.name,
+            frame_stride=math.gcd(int(cfg.train.frame_stride), int(cfg.train.val_frame_stride)),
+        )
     common = {"root": root, "num_classes": num_classes, "store": store}
     frames = {**common, "image_dir": image_dir, "enhancer": on_the_fly}
     training = {
