@@ -203,10 +203,14 @@ def test_training_caches_only_the_frames_its_strides_read(tiny_dataset, tmp_path
 
     cfg = config(tiny_dataset, tmp_path, "fold=3", "train.frame_stride=4", "train.val_frame_stride=6")
     train_names, val_names = split_sequences(load_manifest(tiny_dataset), 3)
-    train_set, val_set = build_datasets(cfg, tiny_dataset, train_names, val_names, 3, instantiate(cfg.enhance))
+    train_set, val_set = build_datasets(
+        cfg, tiny_dataset, train_names, val_names, 3, instantiate(cfg.enhance)
+    )
     assert train_set.store is val_set.store
     assert train_set.store.frame_stride == 2 and train_set.store.folder.name.endswith("-every2")
     assert {frame for _, frame, _, _ in train_set.samples} <= set(range(0, 1000, 4))
     # the store holds every other frame: just what the two strides read
     seq = train_names[0]
-    assert len(train_set.store.frames(seq)) == len(range(0, len(list((tiny_dataset / seq / "img").iterdir())), 2))
+    assert len(train_set.store.frames(seq)) == len(
+        range(0, len(list((tiny_dataset / seq / "img").iterdir())), 2)
+    )

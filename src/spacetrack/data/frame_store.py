@@ -56,7 +56,9 @@ class FrameStore:
         frame_stride: int = 1,
     ) -> None:
         if int(frame_stride) != frame_stride or frame_stride < 1:
-            raise ValueError(f"frame store of {root}: frame_stride must be a whole number >= 1, got {frame_stride}")
+            raise ValueError(
+                f"frame store of {root}: frame_stride must be a whole number >= 1, got {frame_stride}"
+            )
         self.root = Path(root)
         self.frame_stride = int(frame_stride)
         self.image_dir = image_dir
