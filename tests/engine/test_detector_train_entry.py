@@ -3,11 +3,14 @@ import os
 
 import mlflow
 import pytest
+from hydra.utils import instantiate
 from omegaconf import open_dict
 
 from spacetrack.config import compose_config
+from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.engine import trainer as trainer_module
 from spacetrack.engine.cross_validation import PARENT_ENV, CrossValidationCallback
+from spacetrack.engine.training import build_datasets
 from spacetrack.train import run
 
 
@@ -196,11 +199,6 @@ def test_training_starts_from_the_shipped_pretrained_weights_of_its_model(
 
 
 def test_training_caches_only_the_frames_its_strides_read(tiny_dataset, tmp_path):
-    from hydra.utils import instantiate
-
-    from spacetrack.data.layout import load_manifest, split_sequences
-    from spacetrack.engine.training import build_datasets
-
     cfg = config(tiny_dataset, tmp_path, "fold=3", "train.frame_stride=4", "train.val_frame_stride=6")
     train_names, val_names = split_sequences(load_manifest(tiny_dataset), 3)
     train_set, val_set = build_datasets(

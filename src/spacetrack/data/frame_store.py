@@ -1,11 +1,12 @@
 """Decoded frames of a dataset, cached once as one uint8 array per sequence and read memory-mapped.
 
 Training reads thousands of samples an epoch; decoding a JPEG (and enhancing it) per sample costs more
-than the crop itself. The store decodes every frame of a sequence once (or every `frame_stride`-th), in frame order, into
-`<cache_dir>/<image_dir>[-<enhancer>][-every<k>]/<seq>.npy`, an (T, H, W, 3) RGB uint8 array, with a
-`<seq>.json` beside it that records what it was made from (the dataset's content hash, the image
-folder, the enhancer, the names of the frames it holds). A cache that no longer matches is made again; both files are written
-atomically, so a killed build leaves no half-written cache that could be read later.
+than the crop itself. The store decodes every frame of a sequence (or every `frame_stride`-th) once, in
+frame order, into `<cache_dir>/<image_dir>[-<enhancer>][-every<k>]/<seq>.npy`, an (T, H, W, 3) RGB uint8
+array, with a `<seq>.json` beside it that records what it was made from (the dataset's content hash,
+the image folder, the enhancer, the names of the frames it holds). A cache that no longer matches is
+made again; both files are written atomically, so a killed build leaves no half-written cache that
+could be read later.
 
 Size: 0.9 MB a 640x480 frame; the default dataset (5,400 frames) takes 5 GB of disk, read through the
 page cache. A store of every k-th frame takes a k-th of that: a pretraining that reads every 12th frame
@@ -97,7 +98,7 @@ class FrameStore:
         return json.loads(meta_path.read_text()) == self._meta(seq, names)
 
     def _paths(self, seq: str) -> list[Path]:
-        return list(frame_paths(self.root, seq, self.image_dir))[:: self.frame_stride]
+        return frame_paths(self.root, seq, self.image_dir)[:: self.frame_stride]
 
     def _build(self, seq: str) -> None:
         paths = self._paths(seq)
