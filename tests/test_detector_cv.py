@@ -135,3 +135,34 @@ def test_rescoring_takes_the_pieces_own_run_or_leaves_the_piece_alone(train_conf
     assert study.rescored(old, 2, tmp_path) == {**old, "all": {"x": 1}} and scored == [b"weights"]
     elsewhere = {**old, "run_id": "f" * 32}  # trained on another machine: its run is not in this store
     assert study.rescored(elsewhere, 2, tmp_path) is None and len(scored) == 1
+
+
+def test_start_only_scores_the_weights_a_training_would_start_from(train_config, tmp_path, monkeypatch):
+    start = tmp_path / "start.pt"
+    start.write_bytes(b"pretrained")
+    overrides = [f"output_dir={tmp_path}", f"logger.tracking_uri=sqlite:///{tmp_path / 'mlflow.db'}",
+                 f"data_root={tmp_path / 'data'}", f"weights={start}"]  # fmt: skip
+    scored = []
+    monkeypatch.setattr(
+        study, "score", lambda cfg, w, stride: scored.append(w.read_bytes()) or {"all": {"x": 1}}
+    )
+    monkeypatch.setattr(study, "fit", lambda cfg: pytest.fail("--start-only trained"))
+    (tmp_path / "configs").mkdir()  # main() makes it
+    got = study.piece("yolov5s", 3, overrides, 2, tmp_path, start_only=True)
+    assert scored == [b"pretrained"] and got["start_only"] and got["run_id"] is None
+    assert got["start"] == str(start) and got["start_hash"].startswith("sha256:")
+    assert (tmp_path / "configs" / "yolov5s_fold3.yaml").is_file()
+    # rescored from the same file; a start that has changed since leaves the piece alone
+    result = {"slug": "yolov5s", "fold": 3, "overrides": overrides, **got}
+    assert study.rescored(result, 2, tmp_path) == result and len(scored) == 2
+    start.write_bytes(b"pretrained again")
+    assert study.rescored(result, 2, tmp_path) is None and len(scored) == 2
+    # auto: the shipped file of the model's GAM position; none: nothing to score
+    cfg = study.variant_config("dwt_hsv_gam", 3, overrides[:3], tmp_path)
+    assert study.start_weights(cfg) == study.PRETRAINED["after_sppf"]
+    with pytest.raises(SystemExit, match="weights=none names no weights file"):
+        study.start_weights(study.variant_config("yolov5s", 3, [*overrides[:3], "weights=none"], tmp_path))
+    piece = {"slug": "yolov5s", "fold": 3, "overrides": [], "start_only": True,
+             "all": {"map50": 0.9, "map50_95": 0.5, "recall_at_score": 0.8, "frames": 10}}  # fmt: skip
+    assert "the start's weights, not fine-tuned" in study.table([piece])
+    assert "each fold's best epoch" in study.table([{**piece, "start_only": False}])

@@ -14,6 +14,11 @@ from every piece present, so a killed run loses at most the training it was in, 
     python experiments/detector_cv/run.py --folds 0 1 2 3 4 5 6 7 8 -- train.threads=1
     python experiments/detector_cv/run.py --variants yolov5s,dwt_hsv,gam,dwt_hsv_gam --folds 0 3 7 \
         --out experiments/ablation_dwt_gam                               # the DWT/HSV and GAM ablation
+    python experiments/detector_cv/run.py --start-only --variants yolov5s --out experiments/detector_cv/start
+
+With `--start-only` nothing is trained: each fold is scored with the weights its training would start
+from (`weights`: the shipped pretrained file of the variant's model, or a path), what fine-tuning adds
+to.
 """
 
 from __future__ import annotations
@@ -33,8 +38,9 @@ from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.metrics import CONFUSION_IOU, CONFUSION_MIN_SCORE, detection_metrics
+from spacetrack.engine.pretrained import PRETRAINED
 from spacetrack.engine.validate import evaluate
-from spacetrack.io import atomic_write_text
+from spacetrack.io import atomic_write_text, file_hash
 from spacetrack.mlflow_log import artifact_file, finished_runs, flatten_params, tracking_uri
 from spacetrack.train import fit
 
@@ -173,10 +179,26 @@ def recorded_config(cfg) -> str:
     return OmegaConf.to_yaml(recorded)
 
 
-def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Path) -> dict:
-    """Train (or reuse) one variant on one fold and score it."""
+def start_weights(cfg) -> Path:
+    """The file a training of `cfg` starts from: `weights`, a path, or `auto`, the shipped pretrained
+    file of the model's GAM position."""
+    choice = str(cfg.weights)
+    path = PRETRAINED.get(cfg.model.get("gam_position")) if choice == "auto" else Path(choice)
+    if path is None or choice.lower() == "none" or not path.is_file():
+        raise SystemExit(f"--start-only: weights={choice} names no weights file to score ({path})")
+    return path
+
+
+def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Path,
+          start_only: bool = False) -> dict:  # fmt: skip
+    """Train (or reuse) one variant on one fold and score it; with `start_only` score the weights its
+    training would start from instead."""
     cfg = variant_config(slug, fold, overrides, out)
     atomic_write_text(out / "configs" / f"{slug}_fold{fold}.yaml", recorded_config(cfg))
+    if start_only:
+        start = start_weights(cfg)
+        return {"run_id": None, "best_epoch": None, "start_only": True, "start": str(start),
+                "start_hash": file_hash(start), **score(cfg, start, frame_stride)}  # fmt: skip
     found = matching_run(cfg)
     if found is None:
         fit(cfg)
@@ -191,6 +213,11 @@ def rescored(result: dict, frame_stride: int, out: Path) -> dict | None:
     """`result` (a piece) scored again from the weights of its own MLflow run, or None where this store
     does not hold that run (trained on another machine)."""
     cfg = variant_config(result["slug"], result["fold"], result["overrides"], out)
+    if result.get("start_only"):
+        start = start_weights(cfg)
+        if file_hash(start) != result["start_hash"]:
+            return None
+        return {**result, **score(cfg, start, frame_stride)}
     found = matching_run(cfg)
     if found is None or found[0] != result["run_id"]:
         return None
@@ -245,8 +272,10 @@ def table(results: list[dict]) -> str:
         lines.append("| " + " | ".join(row) + " |")
     lines += confusion_tables(results)
     overrides = sorted({" ".join(r["overrides"]) or "(none)" for r in results})
+    scored = "the start's weights, not fine-tuned" if all(r.get("start_only") for r in results) else (
+        "each fold's best epoch")  # fmt: skip
     return (
-        f"Overrides `{'`, `'.join(overrides)}`; each fold's best epoch, native 640x480 frames.\n\n"
+        f"Overrides `{'`, `'.join(overrides)}`; {scored}, native 640x480 frames.\n\n"
         + "\n".join(lines)
         + "\n"
     )
@@ -292,6 +321,11 @@ def main() -> None:
         "adds metrics added since they were scored",
     )
     parser.add_argument(
+        "--start-only",
+        action="store_true",
+        help="train nothing: score each fold with the weights its training would start from",
+    )
+    parser.add_argument(
         "overrides", nargs="*", help="Hydra overrides of the train config for every run (after --)"
     )
     args = parser.parse_args()
@@ -309,12 +343,13 @@ def main() -> None:
                     continue
                 result = rescored(json.loads(path.read_text()), args.frame_stride, args.out)
                 if result is None:
-                    print(f"{path}: its MLflow run is not in this store; left as it is")
+                    print(f"{path}: its MLflow run (or start file) is not in this store; left as it is")
                     continue
             else:
                 result = {"slug": slug, "variant": VARIANTS[slug][0], "fold": fold,
                           "overrides": args.overrides,
-                          **piece(slug, fold, args.overrides, args.frame_stride, args.out)}  # fmt: skip
+                          **piece(slug, fold, args.overrides, args.frame_stride, args.out,
+                                  args.start_only)}  # fmt: skip
             atomic_write_text(path, json.dumps(result, indent=2) + "\n")
             write_tables(args.out)
             print(
