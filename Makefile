@@ -97,6 +97,7 @@ train: $(STAMP) $(DEFAULT_DATA)/manifest.json ## train the detector: validate on
 
 PRETRAIN_DATA := data/space_pretrain
 PRETRAIN_252 := data/space_pretrain_252
+PRETRAIN_756 := data/space_pretrain_756
 
 $(PRETRAIN_DATA)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data data=pretrain seed=1000
@@ -104,21 +105,30 @@ $(PRETRAIN_DATA)/manifest.json: | $(STAMP)
 $(PRETRAIN_252)/manifest.json: | $(STAMP)
 	$(PY) -m spacetrack.build_data data=pretrain_252 seed=1000
 
-# make pretrain, in three steps (weights/README.md): YOLOv5s from scratch on the 72 training sequences of
-# data/space_pretrain (the first stage, kept in outputs/pretrain/first_stage, made once); YOLOv5s trained
-# further from it on the 216 of data/space_pretrain_252; YOLOv5s + GAM from that file (every tensor but
-# the GAM block's), on the same sequences
+$(PRETRAIN_756)/manifest.json: | $(STAMP)
+	$(PY) -m spacetrack.build_data data=pretrain_756 seed=1000
+
+# make pretrain, in four steps (weights/README.md): YOLOv5s from scratch on the 72 training sequences of
+# data/space_pretrain (the first stage, kept in outputs/pretrain/first_stage); trained further from it on
+# the 216 of data/space_pretrain_252 (the second, kept in outputs/pretrain/second_stage); both made once;
+# then on the 648 of data/space_pretrain_756 (the third, -> weights/yolov5s_pretrained.pt); YOLOv5s + GAM
+# from that file (every tensor but the GAM block's) on the same sequences
 PRETRAIN_FIRST := outputs/pretrain/first_stage/yolov5s_pretrained.pt
-SECOND_STAGE := data=pretrain_252 train=pretrain_252
-GAM_PRETRAIN := $(SECOND_STAGE) model=yolov5s_gam enhance=dwt_hsv weights=weights/yolov5s_pretrained.pt weights_partial=true
+PRETRAIN_SECOND := outputs/pretrain/second_stage/yolov5s_pretrained.pt
+THIRD_STAGE := data=pretrain_756 train=pretrain_756
+GAM_PRETRAIN := $(THIRD_STAGE) model=yolov5s_gam enhance=dwt_hsv weights=weights/yolov5s_pretrained.pt weights_partial=true
 pretrain_run = $(if $(GPUS),$(call gpu_check,train.trainer.device) && $(TORCHRUN),$(PY)) -m spacetrack.pretrain \
 	hydra.run.dir=outputs/pretrain/$(RUN_STAMP)_$(1)
 
 $(PRETRAIN_FIRST): | $(STAMP) $(PRETRAIN_DATA)/manifest.json
 	$(call pretrain_run,yolov5s_first_stage) export_dir=$(dir $(PRETRAIN_FIRST)) $(ARGS)
 
-pretrain: $(STAMP) $(PRETRAIN_FIRST) $(PRETRAIN_252)/manifest.json ## pretrain YOLOv5s in two stages, then YOLOv5s+GAM (DWT/HSV) from it (GPUS=N: on N GPUs) -> weights/*_pretrained.pt; resumable
-	$(call pretrain_run,yolov5s) $(SECOND_STAGE) weights=$(PRETRAIN_FIRST) $(ARGS)
+$(PRETRAIN_SECOND): | $(STAMP) $(PRETRAIN_FIRST) $(PRETRAIN_252)/manifest.json
+	$(call pretrain_run,yolov5s_second_stage) data=pretrain_252 train=pretrain_252 weights=$(PRETRAIN_FIRST) \
+		export_dir=$(dir $(PRETRAIN_SECOND)) $(ARGS)
+
+pretrain: $(STAMP) $(PRETRAIN_SECOND) $(PRETRAIN_756)/manifest.json ## pretrain YOLOv5s in three stages, then YOLOv5s+GAM (DWT/HSV) from it (GPUS=N: on N GPUs) -> weights/*_pretrained.pt; resumable
+	$(call pretrain_run,yolov5s) $(THIRD_STAGE) weights=$(PRETRAIN_SECOND) $(ARGS)
 	$(call pretrain_run,yolov5s_gam) $(GAM_PRETRAIN) $(ARGS)
 
 detector-cv: $(STAMP) $(DEFAULT_DATA)/manifest.json ## per-fold detector results, plain and improved, per scenario -> experiments/detector_cv (FOLDS="3 4")
