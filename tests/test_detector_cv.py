@@ -11,6 +11,7 @@ from omegaconf import open_dict
 
 from spacetrack.config import REPO_ROOT, compose_config
 from spacetrack.data.layout import FORMAT_VERSION, MANIFEST
+from spacetrack.engine.pretrained import PRETRAINED
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 
 spec = importlib.util.spec_from_file_location("detector_cv", REPO_ROOT / "experiments/detector_cv/run.py")
@@ -159,7 +160,7 @@ def test_start_only_scores_the_weights_a_training_would_start_from(train_config,
     assert study.rescored(result, 2, tmp_path) is None and len(scored) == 2
     # auto: the shipped file of the model's GAM position; none: nothing to score
     cfg = study.variant_config("dwt_hsv_gam", 3, overrides[:3], tmp_path)
-    assert study.start_weights(cfg) == study.PRETRAINED["after_sppf"]
+    assert study.start_weights(cfg) == PRETRAINED["after_sppf"]
     with pytest.raises(SystemExit, match="weights=none names no weights file"):
         study.start_weights(study.variant_config("yolov5s", 3, [*overrides[:3], "weights=none"], tmp_path))
     piece = {"slug": "yolov5s", "fold": 3, "overrides": [], "start_only": True,

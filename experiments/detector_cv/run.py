@@ -38,7 +38,7 @@ from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.metrics import CONFUSION_IOU, CONFUSION_MIN_SCORE, detection_metrics
-from spacetrack.engine.pretrained import PRETRAINED
+from spacetrack.engine.pretrained import resolve_weights
 from spacetrack.engine.validate import evaluate
 from spacetrack.io import atomic_write_text, file_hash
 from spacetrack.mlflow_log import artifact_file, finished_runs, flatten_params, tracking_uri
@@ -180,12 +180,10 @@ def recorded_config(cfg) -> str:
 
 
 def start_weights(cfg) -> Path:
-    """The file a training of `cfg` starts from: `weights`, a path, or `auto`, the shipped pretrained
-    file of the model's GAM position."""
-    choice = str(cfg.weights)
-    path = PRETRAINED.get(cfg.model.get("gam_position")) if choice == "auto" else Path(choice)
-    if path is None or choice.lower() == "none" or not path.is_file():
-        raise SystemExit(f"--start-only: weights={choice} names no weights file to score ({path})")
+    """The file a training of `cfg` starts from (`resolve_weights`, as the training resolves it)."""
+    path = resolve_weights(cfg.weights, instantiate(cfg.model, num_classes=1).arch)
+    if path is None:
+        raise SystemExit(f"--start-only: weights={cfg.weights} names no weights file to score")
     return path
 
 
@@ -272,8 +270,8 @@ def table(results: list[dict]) -> str:
         lines.append("| " + " | ".join(row) + " |")
     lines += confusion_tables(results)
     overrides = sorted({" ".join(r["overrides"]) or "(none)" for r in results})
-    scored = "the start's weights, not fine-tuned" if all(r.get("start_only") for r in results) else (
-        "each fold's best epoch")  # fmt: skip
+    start_only = all(r.get("start_only") for r in results)
+    scored = "the start's weights, not fine-tuned" if start_only else "each fold's best epoch"
     return (
         f"Overrides `{'`, `'.join(overrides)}`; {scored}, native 640x480 frames.\n\n"
         + "\n".join(lines)
