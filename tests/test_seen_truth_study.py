@@ -125,9 +125,16 @@ def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses
     assert all(c[1:] == (2, "seen", "outputs/wider", "wider") for c in calls)
     piece = json.loads((tmp_path / "wider" / "tracking" / "yolo_deepsort_original_fold2.json").read_text())
     assert piece["row"] == "yolo_deepsort_original" and piece["metrics"]["mota"] == 0.7
-    monkeypatch.setattr("sys.argv", argv + ["--rows", "gt_deepsort_paper"])
+    monkeypatch.setattr("sys.argv", argv + ["--rows", "sort_deepsort_paper"])
     with pytest.raises(SystemExit, match="not a Table 4 row on a study's detector boxes"):
         driver.main()
+    # a gt_ row tracks the fold's ground-truth boxes: no detector, none needed
+    calls.clear()
+    monkeypatch.setattr("sys.argv", argv[:3] + ["--folds", "6", "--rows", "gt_deepsort_paper_frame"])
+    driver.main()
+    assert [c[:2] for c in calls] == [("gt_deepsort_paper_frame", 6)]
+    piece = json.loads((tmp_path / "wider" / "tracking" / "gt_deepsort_paper_frame_fold6.json").read_text())
+    assert piece["weights"] is None and piece["metrics"]["mota"] == 0.6
     monkeypatch.setattr("sys.argv", argv[:3] + ["--folds", "5", "--detectors", str(detectors)])
     with pytest.raises(SystemExit, match="yolov5s_fold5/weights/best.pt is missing"):
         driver.main()

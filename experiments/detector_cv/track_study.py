@@ -6,9 +6,10 @@ A study is a folder `experiments/detector_cv/<study>/` whose folds were trained 
 YOLOv5s (`yolov5s`), the `gam_...` rows YOLOv5s + GAM on DWT/HSV (`dwt_hsv_gam`). Each fold's detector
 tracks the fold's validation sequences with each row's settings (`experiments/table4_mota/run.py`) and
 fold 3's shipped re-ID, exactly as `experiments/seen_truth/run.py` tracks the detectors fine-tuned from
-the first pretraining stage, so the two compare row by row. Each (row, fold) lands in `<study>/tracking/<row>_fold<k>.json` at once,
-with its MOTA, HOTA, IDF1, ID switches, false positives, misses and the exact `python -m spacetrack.track`
-command.
+the first pretraining stage, so the two compare row by row. A `gt_...` row tracks the fold's
+ground-truth boxes on the same truth (no detector: the study's reference). Each (row, fold) lands in
+`<study>/tracking/<row>_fold<k>.json` at once, with its MOTA, HOTA, IDF1, ID switches, false positives,
+misses and the exact `python -m spacetrack.track` command.
 
 With `--gates` each fold is tracked instead with the paper's settings (`yolo_deepsort_paper`) and then with
 each of the keys where they differ from the original DeepSORT settings set back to the original's value,
@@ -94,13 +95,16 @@ def main() -> None:
         raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
     rows = ["yolo_deepsort_paper"] if args.gates else args.rows
     for row in rows:
-        if row.split("_")[0] not in DETECTORS:
+        if row.split("_")[0] not in (*DETECTORS, "gt"):
             raise SystemExit(
-                f"--rows {row}: not a Table 4 row on a study's detector boxes (yolo_... or gam_...)"
+                f"--rows {row}: not a Table 4 row on a study's detector boxes (yolo_... or gam_...) "
+                "or on ground-truth boxes (gt_...)"
             )
     cv = _script("detector_cv_run", "experiments/detector_cv/run.py")
 
-    def weights_of(row: str, fold: int) -> Path:
+    def weights_of(row: str, fold: int) -> Path | None:
+        if row.startswith("gt_"):
+            return None  # ground-truth boxes: no detector
         slug = DETECTORS[row.split("_")[0]]
         run = args.detectors / f"{slug}_fold{fold}" if args.detectors else cv.run_folder(slug, fold, folder)
         weights = run / "weights" / "best.pt"
@@ -123,7 +127,8 @@ def main() -> None:
                 row, fold, "seen", weights[row, fold], out=f"outputs/{args.study}", experiment=args.study,
                 extra=extra, folder=name,
             )  # fmt: skip
-            piece = {"row": row, "fold": fold, "weights": str(weights[row, fold]), **result}
+            detector = weights[row, fold]
+            piece = {"row": row, "fold": fold, "weights": detector and str(detector), **result}
             if extra:
                 piece["extra"] = list(extra)
             atomic_write_text(out / f"{name}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
