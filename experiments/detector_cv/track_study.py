@@ -103,8 +103,8 @@ def main() -> None:
     cv = _script("detector_cv_run", "experiments/detector_cv/run.py")
 
     def weights_of(row: str, fold: int) -> Path | None:
-        if row.startswith("gt_"):
-            return None  # ground-truth boxes: no detector
+        if row.split("_")[0] not in DETECTORS:
+            return None  # a gt_ row: ground-truth boxes, no detector
         slug = DETECTORS[row.split("_")[0]]
         run = args.detectors / f"{slug}_fold{fold}" if args.detectors else cv.run_folder(slug, fold, folder)
         weights = run / "weights" / "best.pt"
@@ -128,7 +128,7 @@ def main() -> None:
                 extra=extra, folder=name,
             )  # fmt: skip
             detector = weights[row, fold]
-            piece = {"row": row, "fold": fold, "weights": detector and str(detector), **result}
+            piece = {"row": row, "fold": fold, "weights": str(detector) if detector else None, **result}
             if extra:
                 piece["extra"] = list(extra)
             atomic_write_text(out / f"{name}_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
