@@ -67,7 +67,11 @@ KINDS = {"matches": "", "matches_any": ANY, "matches_multi": MULTI}
 NEUTRAL = ("threads", "device", "workers", "channels_last")
 # Training keys added after runs were made, at the value that trains as those runs did: a run without the
 # key matches that value.
-ADDED_LATER = {"train.trainer.sync_bn": "False"}
+ADDED_LATER = {
+    "train.trainer.sync_bn": "False",
+    "train.augment.exposure": "0.0",
+    "train.augment.exposure_gain": "[0.15, 3.0]",
+}
 
 
 def validation_sets(cfg, frame_stride: int) -> tuple[list[str], dict[str, YoloDataset]]:

@@ -81,7 +81,12 @@ def _table4_rows() -> dict:
 def label_statistics(data_root: Path) -> dict:
     """Per scenario and per sequence: the silhouette truth's shown target boxes, and the share of them the
     seen truth hides or shrinks below IoU 0.5 (moving targets, every frame)."""
-    silhouette, seen = (data_root / name for name in TRUTHS.values())
+    return truth_changes(*(data_root / name for name in TRUTHS.values()))
+
+
+def truth_changes(silhouette: Path, seen: Path) -> dict:
+    """`label_statistics` of any two renders of the same sequences: the boxes shown in the first
+    (`silhouette`), and how many of them the second (`seen`) hides or moves below IoU 0.5."""
     manifest = load_manifest(silhouette)
     counts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     per_sequence = {}

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import cv2
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
 from spacetrack.build_data import check_config, make_plan
 from spacetrack.config import compose_config
-from spacetrack.data.raster import Camera
-from spacetrack.data.render import SequenceRenderer
+from spacetrack.data.raster import Camera, Layer
+from spacetrack.data.render import SequenceRenderer, frame_truth
 from spacetrack.data.scenario import scenario_params
 from spacetrack.data.scene import plan_sequence
 
@@ -174,7 +177,8 @@ def test_seen_boxes_frame_the_visible_pixels_that_clear_the_noise():
     seen, outline = SequenceRenderer(plan, truth="seen"), SequenceRenderer(plan)
     checked = shrunk = 0
     for t in range(0, 48, 6):
-        sky, floor = seen.seen_reference(t)
+        sky, floor, sigma = seen.seen_reference(t)
+        assert sigma == plan.params.psf_sigma_px > 0
         layers = seen.layers(t)
         painted = {}  # per object: its radiance where its silhouette lies in the frame (NaN elsewhere)
         for obj, layer in zip(plan.objects, layers, strict=True):
@@ -193,6 +197,9 @@ def test_seen_boxes_frame_the_visible_pixels_that_clear_the_noise():
                 if d > depth:
                     behind = np.where(np.isnan(c), behind, c)
             contrast = np.abs(np.nan_to_num(canvas, nan=0.0) - behind).max(axis=-1)
+            contrast = np.where(np.isnan(canvas[..., 0]), 0.0, contrast).astype(np.float32)
+            # spread by the optics' blur over the object's own pixels, as the image spreads it
+            contrast = cv2.GaussianBlur(contrast, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
             radiance[oid] = np.where(np.isnan(canvas[..., 0]), -1.0, contrast)
         rows = {r.id: r for r in seen.truth(t).rows}
         whole = {r.id: r for r in outline.truth(t).rows}
@@ -277,3 +284,19 @@ def test_build_data_rejects_unknown_truth_settings(tmp_path, override, match):
     cfg = compose_config("build_data", [f"data_root={tmp_path}", override])
     with pytest.raises(ValueError, match=match):
         check_config(cfg)
+
+
+@pytest.mark.parametrize(("psf_sigma", "height"), [(0.0, 32), (0.7, 7)])
+def test_a_lone_faint_pixel_does_not_stretch_a_seen_box_once_blurred(psf_sigma, height):
+    # a lit end (6x12 px, ten times the needed contrast) and, 26 px along the dark body, one pixel just
+    # above it before the optics' blur: the image shows the end only (and the blur its light a pixel beyond)
+    mask = np.ones((32, 12), dtype=bool)
+    radiance = np.zeros((32, 12, 3), dtype=np.float32)
+    radiance[26:, :] = 1.0
+    radiance[0, 6] = 0.12
+    layer = Layer(x0=40, y0=20, radiance=radiance, mask=mask, depth=10.0)
+    target = SimpleNamespace(id=1, class_id=1, static=False, moving=lambda t: True)
+    sky = np.zeros((80, 100, 3), dtype=np.float32)
+    floor = np.full((80, 100), 0.1, dtype=np.float32)
+    (row,) = frame_truth([target], [layer], 0, 100, 80, (sky, floor, psf_sigma)).rows
+    assert (row.x, row.y, row.w, row.h) == (40, 20 + 32 - height, 12, height)

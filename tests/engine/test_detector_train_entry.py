@@ -212,3 +212,23 @@ def test_training_caches_only_the_frames_its_strides_read(tiny_dataset, tmp_path
     assert len(train_set.store.frames(seq)) == len(
         range(0, len(list((tiny_dataset / seq / "img").iterdir())), 2)
     )
+
+
+@pytest.mark.parametrize("enhance", ["none", "dwt_hsv"])
+def test_reexposure_comes_before_an_enhancement(tiny_dataset, tmp_path, enhance):
+    cfg = config(tiny_dataset, tmp_path, "fold=3", f"enhance={enhance}", "train.augment.exposure=0.5")
+    train_names, val_names = split_sequences(load_manifest(tiny_dataset), 3)
+    train_set, val_set = build_datasets(
+        cfg, tiny_dataset, train_names, val_names, 3, instantiate(cfg.enhance)
+    )
+    exposure = train_set.augment.transforms[0]
+    assert type(exposure).__name__ == "Exposure"
+    if enhance == "none":  # re-exposure commutes with cutting the window: done on the window
+        assert train_set.reexposure is None and exposure.p == 0.5
+    else:  # the enhancement adapts to the frame: whole unenhanced frames are re-exposed, then enhanced
+        assert exposure.p == 0.0 and train_set.reexposure.p == 0.5
+        assert train_set.reexposure.raw.folder.name.split("-")[0] == "img"
+        assert train_set.reexposure.raw.enhancer is None and train_set.store.enhancer is not None
+        assert val_set.reexposure is None
+    image, _ = train_set[0]
+    assert image.shape[:2] == (cfg.train.image_size, cfg.train.image_size)

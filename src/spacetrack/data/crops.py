@@ -21,6 +21,7 @@ import albumentations as A
 import numpy as np
 from torch.utils.data import Dataset
 
+from spacetrack.data.exposure import FrameExposure
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.yolo_dataset import apply_augmentation, frame_samples
 
@@ -60,6 +61,8 @@ class CropDataset(Dataset):
     jitter: how far a target may sit from the window centre, as a fraction of half the window (0-1).
     mosaic: fraction of samples made of four half-size windows of four frames (0-1).
     min_visibility: a box cut by the window edge is kept while this fraction of it is inside (0-1).
+    reexposure: re-exposes (and enhances) a whole frame before its window is cut, for an enhanced
+        detector (`spacetrack.data.exposure.FrameExposure`); None reads every frame from `store`.
     """
 
     def __init__(
@@ -77,6 +80,7 @@ class CropDataset(Dataset):
         min_visibility: float = 0.4,
         augment: A.Compose | None = None,
         seed: int = 0,
+        reexposure: FrameExposure | None = None,
     ) -> None:
         for name, value in (("background", background), ("jitter", jitter), ("mosaic", mosaic)):
             if not 0 <= value <= 1:
@@ -90,6 +94,7 @@ class CropDataset(Dataset):
             raise ValueError(f"no labelled target in the training frames of {root}: nothing to learn from")
         self.background, self.jitter, self.mosaic = background, jitter, mosaic
         self.min_visibility, self.augment, self.seed = min_visibility, augment, seed
+        self.reexposure = reexposure
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -102,7 +107,9 @@ class CropDataset(Dataset):
     def window(self, index: int, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """A size x size window of sample `index`'s frame and its labels, placed by `rng`."""
         seq, frame, _, labels = self.samples[index]
-        image = self.store.frame(seq, frame)
+        image = None if self.reexposure is None else self.reexposure(seq, frame, rng)
+        if image is None:
+            image = self.store.frame(seq, frame)
         height, width = image.shape[:2]
         if len(labels) and rng.random() >= self.background:
             _, cx, cy, _, _ = labels[rng.integers(len(labels))]

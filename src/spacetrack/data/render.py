@@ -10,7 +10,11 @@ Two truths are offered (`TRUTH_MODES`, the dataset's `truth` key):
 - "seen" (the datasets' default, `conf/data/default.yaml`): only the pixels the camera can show count:
   an object pixel counts where it differs from what lies behind it (the sky without its stars, or a
   farther object), in some colour channel and exposed by the frame's gain, by at least `seen_snr` times
-  the sensor noise there (sky, stray light, black level; before the optics' blur). A face turned from
+  the sensor noise there (sky, stray light, black level), once the optics' blur (the point-spread
+  function, `psf_sigma_px`) has spread it as the image spreads it: a lone faint pixel or a one-pixel rim
+  just above the noise before the blur is below it in the image, and does not stretch the box over the
+  dark body between it and the lit part (a rocket body lit only at its end keeps the box of that end).
+  A face turned from
   the sun (black, as `ambient` 0 leaves it) is not seen against black space but is seen against a lit
   planet or a lit target behind it; a target with no seen pixel is hidden in that frame like an
   occluded one. This is the box a person marking what the image shows would draw.
@@ -95,15 +99,16 @@ def frame_truth(
 ) -> FrameTruth:
     """Boxes, visibility and the motion mask of frame `t` from the objects' layers.
 
-    seen: None (every silhouette pixel counts), or (sky, min_contrast): the radiance (height, width, 3)
-    behind every object and the (height, width) contrast an object pixel needs: it counts only where
-    some channel of its radiance differs from what lies behind it (the sky, or the farther objects
-    painted there) by at least that much ("seen" truth).
+    seen: None (every silhouette pixel counts), or (sky, min_contrast, psf_sigma): the radiance
+    (height, width, 3) behind every object, the (height, width) contrast an object pixel needs and the
+    optics' blur (Gaussian sigma, pixels): it counts only where the largest channel difference between
+    the object's radiance and what lies behind it (the sky, or the farther objects painted there),
+    blurred over the object's pixels by `psf_sigma`, is at least that much ("seen" truth).
     """
     order = sorted((k for k, lay in enumerate(layers) if lay is not None), key=lambda k: -layers[k].depth)
     owner = np.zeros((height, width), dtype=np.int16)
     if seen is not None:
-        behind, min_contrast = seen[0].copy(), seen[1]
+        behind, min_contrast, psf_sigma = seen[0].copy(), seen[1], seen[2]
         shown = np.zeros((height, width), dtype=bool)
     clips = {}
     for k in order:
@@ -117,6 +122,11 @@ def frame_truth(
         if seen is not None:
             colour = layers[k].radiance[lay_sl][mask]
             contrast = np.abs(colour - behind[img_sl][mask]).max(axis=-1)
+            if psf_sigma > 0:
+                spread = np.zeros(mask.shape, dtype=np.float32)
+                spread[mask] = contrast
+                spread = cv2.GaussianBlur(spread, (0, 0), psf_sigma, borderType=cv2.BORDER_CONSTANT)
+                contrast = spread[mask]
             shown[img_sl][mask] = contrast >= min_contrast[img_sl][mask]
             behind[img_sl][mask] = colour
     outline = owner.copy() if seen is not None else owner
@@ -242,19 +252,20 @@ class SequenceRenderer:
         cam = self.plan.camera
         return optics.shift_canvas(self.sky, self.pad, self.offset(t), (cam.width, cam.height))
 
-    def seen_reference(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+    def seen_reference(self, t: int) -> tuple[np.ndarray, np.ndarray, float]:
         """What the "seen" truth compares each object pixel of frame `t` with: (the sky radiance (H, W, 3)
         behind the objects, median-filtered over 5x5 pixels, which takes out the stars: a black target
         hiding a star is not thereby seen, one crossing a planet is; the (H, W) contrast a pixel needs:
         `seen_snr` times the noise the sensor adds over the background there, sky and stray light, in
-        radiance units of this frame's gain)."""
+        radiance units of this frame's gain; the optics' blur sigma the contrast is spread by)."""
         p, gain = self.plan.params, float(self.plan.exposure[t])
         sky = self._sky(t)
         background = sky if self.stray is None else sky + self.stray
         background_dn = np.clip(background.max(axis=-1) * gain, 0.0, 2.0) * 255.0 + p.black_level_dn
         noise_dn = np.sqrt(background_dn * p.shot_noise**2 + p.read_noise_dn**2)
         min_contrast = (self.seen_snr * noise_dn / (255.0 * gain)).astype(np.float32)
-        return cv2.medianBlur(np.ascontiguousarray(sky, dtype=np.float32), 5), min_contrast
+        sky = cv2.medianBlur(np.ascontiguousarray(sky, dtype=np.float32), 5)
+        return sky, min_contrast, float(p.psf_sigma_px)
 
     def truth(self, t: int, layers: list[Layer | None] | None = None) -> FrameTruth:
         cam = self.plan.camera

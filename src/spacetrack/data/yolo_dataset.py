@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from spacetrack.data.exposure import Exposure, FrameExposure, exposure_probability
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import frame_paths, read_rgb
 
@@ -89,11 +90,15 @@ def build_augmentation(
     scale: float,
     translate: float,
     fill: int = PAD_VALUE,
+    exposure: float = 0.0,
+    exposure_gain: Sequence[float] = (0.15, 3.0),
 ) -> A.Compose:
-    """HSV jitter (albumentations shift limits), flips (probabilities), scale and translate (fractions);
-    `fill` is the grey level of pixels the affine move brings in."""
+    """Re-exposure (probability, gain range: `spacetrack.data.exposure`), HSV jitter (albumentations shift
+    limits), flips (probabilities), scale and translate (fractions); `fill` is the grey level of pixels the
+    affine move brings in."""
     return A.Compose(
         [
+            Exposure(gain=tuple(exposure_gain), p=exposure_probability(exposure)),
             A.HueSaturationValue(
                 hue_shift_limit=hue, sat_shift_limit=saturation, val_shift_limit=value, p=0.5
             ),
@@ -152,6 +157,8 @@ class YoloDataset(Dataset):
         bottom); an integer letterboxes it to that square.
     store: decoded frames to read from (a `FrameStore`); None decodes each sample's file (and runs
         `enhancer` on it) when it is read.
+    reexposure: re-exposes (and enhances) a frame before it is letterboxed, for an enhanced detector
+        (`spacetrack.data.exposure.FrameExposure`); None reads every frame as stored.
     """
 
     def __init__(
@@ -167,12 +174,14 @@ class YoloDataset(Dataset):
         frame_stride: int = 1,
         augment: A.Compose | None = None,
         seed: int = 0,
+        reexposure: FrameExposure | None = None,
     ) -> None:
         self.root = Path(root)
         self.image_size = image_size
         self.enhancer = enhancer
         self.store = store
         self.augment = augment
+        self.reexposure = reexposure
         self.seed = seed
         self.epoch = 0
         image_dir = store.image_dir if store is not None else image_dir
@@ -196,7 +205,12 @@ class YoloDataset(Dataset):
         return image if self.enhancer is None else self.enhancer(image)
 
     def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        image, labels = self.image(index), self.samples[index][3]
+        seq, frame, _, labels = self.samples[index]
+        image = None
+        if self.reexposure is not None:
+            image = self.reexposure(seq, frame, np.random.default_rng([self.seed, self.epoch, index]))
+        if image is None:
+            image = self.image(index)
         if self.image_size is None:
             boxed = pad_to_stride(image)
             scale = np.array([image.shape[1] / boxed.shape[1], image.shape[0] / boxed.shape[0]] * 2)

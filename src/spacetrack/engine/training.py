@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spacetrack.config import resolved_dict
 from spacetrack.data.crops import CropDataset
+from spacetrack.data.exposure import FrameExposure
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import check_rendered_truth, load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
@@ -58,11 +59,19 @@ def build_datasets(
         )
     common = {"root": root, "num_classes": num_classes, "store": store}
     frames = {**common, "image_dir": image_dir, "enhancer": on_the_fly}
+    augment, reexposure = dict(cfg.train.augment), None
+    if augment.get("exposure") and enhancer.name != "none":
+        # the enhancement adapts to each frame: re-expose the whole unenhanced frame, then enhance it
+        raw = FrameStore(root=root, frame_stride=store.frame_stride if store is not None else 1)
+        raw.prepare(train_names)
+        reexposure = FrameExposure(raw, enhancer, p=augment["exposure"], gain=augment["exposure_gain"])
+        augment["exposure"] = 0.0
     training = {
         "sequences": train_names,
         "frame_stride": cfg.train.frame_stride,
-        "augment": build_augmentation(**cfg.train.augment),
+        "augment": build_augmentation(**augment),
         "seed": cfg.train.trainer.seed,
+        "reexposure": reexposure,
     }
     if cfg.train.input == "crops":
         if store is None:
