@@ -79,6 +79,12 @@ def test_a_run_made_before_a_training_key_existed_matches_that_keys_earlier_valu
     run_id = finished_run(older, weights, 0.4)
     assert study.matching_run(cfg)[0] == run_id
     assert study.matching_run(train_config("enhance=none", "train.trainer.sync_bn=true")) is None
+    older = train_config("enhance=none")
+    with open_dict(older):
+        del older.train.augment["exposure"], older.train.augment["exposure_gain"]
+    run_id = finished_run(older, weights, 0.5)
+    assert study.matching_run(cfg)[0] == run_id  # re-exposure off, as before it existed
+    assert study.matching_run(train_config("enhance=none", "train.augment.exposure=0.5")) is None
 
 
 def test_a_run_is_reused_only_on_the_same_dataset_content(train_config, tmp_path):
@@ -167,3 +173,24 @@ def test_start_only_scores_the_weights_a_training_would_start_from(train_config,
              "all": {"map50": 0.9, "map50_95": 0.5, "recall_at_score": 0.8, "frames": 10}}  # fmt: skip
     assert "the start's weights, not fine-tuned" in study.table([piece])
     assert "each fold's best epoch" in study.table([{**piece, "start_only": False}])
+
+
+def test_scoring_on_another_labelling_refuses_other_sequences_or_folds(tmp_path):
+    spec = importlib.util.spec_from_file_location(
+        "score_on", REPO_ROOT / "experiments/detector_cv/score_on.py"
+    )
+    score_on = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(score_on)
+    sequences = [
+        {"name": f"seq_{i:03d}_dim", "scenario": "dim", "seed": [0, i], "fold": i % 3} for i in range(6)
+    ]
+    for name, moved in (("a", {}), ("b", {}), ("c", {"fold": 2})):
+        (tmp_path / name).mkdir()
+        rows = [s | (moved if s["name"] == "seq_001_dim" else {}) for s in sequences]
+        manifest = {"format_version": FORMAT_VERSION, "sequences": rows}
+        (tmp_path / name / MANIFEST).write_text(json.dumps(manifest))
+    score_on.check_same_sequences(tmp_path / "a", tmp_path / "b")
+    with pytest.raises(SystemExit, match=r"sequences or folds differ .*1 differ.*seq_001_dim"):
+        score_on.check_same_sequences(tmp_path / "a", tmp_path / "c")
+    assert score_on.trained_dataset({"overrides": ["data.name=x", "data.name=y"]}) == "y"
+    assert score_on.trained_dataset({"overrides": []}) == "space_default"

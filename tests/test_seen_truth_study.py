@@ -107,7 +107,7 @@ def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses
 
     class Study:
         @staticmethod
-        def track_row(row, fold, truth, weights, out, experiment, extra, folder):
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder, data=None):
             assert extra == () and folder == row  # Table 4's row as it is, in its own folder
             calls.append((row, fold, truth, out, experiment))
             return metrics(0.7 if row.endswith("original") else 0.6)
@@ -179,7 +179,7 @@ def test_the_gate_study_sets_one_paper_setting_back_at_a_time_into_one_file_per_
 
     class Study:
         @staticmethod
-        def track_row(row, fold, truth, weights, out, experiment, extra, folder):
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder, data=None):
             calls.append((row, fold, extra, folder))
             return metrics(0.6 + 0.01 * len(extra))
 
@@ -213,7 +213,7 @@ def test_a_labelled_setting_is_tracked_after_each_rows_own_into_files_of_its_own
 
     class Study:
         @staticmethod
-        def track_row(row, fold, truth, weights, out, experiment, extra, folder):
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder, data=None):
             calls.append((row, extra, folder))
             return metrics(0.65)
 
@@ -226,7 +226,7 @@ def test_a_labelled_setting_is_tracked_after_each_rows_own_into_files_of_its_own
         with pytest.raises(SystemExit, match="--set .*: give a label"):
             driver.main()
     monkeypatch.setattr("sys.argv", argv + ["--gates", "--set", "objectness", "detector.score=objectness"])
-    with pytest.raises(SystemExit, match="one at a time"):
+    with pytest.raises(SystemExit, match="no --set or --data"):
         driver.main()
     assert calls == []
     monkeypatch.setattr("sys.argv", argv + ["--rows", "yolo_deepsort_paper", "--set", "objectness",
@@ -239,3 +239,26 @@ def test_a_labelled_setting_is_tracked_after_each_rows_own_into_files_of_its_own
     piece = json.loads((tracking / "yolo_deepsort_paper_objectness_fold3.json").read_text())
     assert piece["row"] == "yolo_deepsort_paper" and piece["extra"] == ["detector.score=objectness"]
     assert not (tracking / "yolo_deepsort_paper_fold3.json").exists()  # Table 4's own row untouched
+
+
+def test_another_labelling_is_tracked_into_its_own_folder(tmp_path, monkeypatch):
+    calls = []
+
+    class Study:
+        @staticmethod
+        def track_row(row, fold, truth, weights, out, experiment, extra, folder, data=None):
+            calls.append((row, folder, data))
+            return metrics(0.7)
+
+    driver = study_driver(tmp_path, monkeypatch, Study, fold=3)
+    (tmp_path / "wider").mkdir()
+    argv = ["track.py", "--study", "wider", "--folds", "3", "--detectors", str(tmp_path / "det")]
+    monkeypatch.setattr("sys.argv", argv + ["--gates", "--data", "relabelled"])
+    with pytest.raises(SystemExit, match="no --set or --data"):
+        driver.main()
+    monkeypatch.setattr("sys.argv", argv + ["--rows", "yolo_deepsort_paper", "--data", "relabelled"])
+    driver.main()
+    assert calls == [("yolo_deepsort_paper", "yolo_deepsort_paper", "relabelled")]
+    piece = tmp_path / "wider" / "on_relabelled" / "tracking" / "yolo_deepsort_paper_fold3.json"
+    assert json.loads(piece.read_text())["metrics"]["mota"] == 0.7
+    assert not (tmp_path / "wider" / "tracking" / "yolo_deepsort_paper_fold3.json").exists()

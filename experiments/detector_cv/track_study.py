@@ -16,6 +16,9 @@ each of the keys where they differ from the original DeepSORT settings set back 
 one at a time and the two detection gates together: what each of the paper's settings costs or gains on
 that fold's detections, in `<study>/tracking/gates_fold<k>.json`.
 
+With `--data NAME` every row tracks and is scored on another dataset of the same sequences (the same
+images labelled another way, as `score_on.py` scores detectors on it), into `<study>/on_<NAME>/tracking/`.
+
 With `--set LABEL OVERRIDE...` each row is tracked with those overrides after its own (a setting beyond
 Table 4's, such as `detector.score=objectness`), into `<study>/tracking/<row>_<LABEL>_fold<k>.json`.
 
@@ -82,14 +85,21 @@ def main() -> None:
     parser.add_argument(
         "--set", nargs="+", metavar=("LABEL", "OVERRIDE"), help="a label, then overrides after each row's own"
     )
+    parser.add_argument(
+        "--data",
+        help="track and score on this dataset of the same sequences (labelled another way) instead of the "
+        "seen truth's; results go to <study>/on_<data>/tracking/",
+    )
     args = parser.parse_args()
     label, extra = (args.set[0], tuple(args.set[1:])) if args.set else ("", ())
     if args.set and (not re.fullmatch(r"[a-z0-9_]+", label) or not extra or not all("=" in e for e in extra)):
         raise SystemExit(
             f"--set {' '.join(args.set)}: give a label of a-z, 0-9 and _, then KEY=VALUE overrides"
         )
-    if args.set and args.gates:
-        raise SystemExit("--set and --gates: one at a time")
+    if (args.set or args.data) and args.gates:
+        raise SystemExit(
+            "--gates tracks the seen truth's dataset with the paper's settings only: no --set or --data"
+        )
     folder = HERE / args.study
     if not folder.is_dir():
         raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
@@ -115,8 +125,8 @@ def main() -> None:
     # every detector present before anything is tracked
     weights = {(row, fold): weights_of(row, fold) for fold in args.folds for row in rows}
     study = _seen_truth_study()
-    out = folder / "tracking"
-    out.mkdir(exist_ok=True)
+    out = folder / f"on_{args.data}" / "tracking" if args.data else folder / "tracking"
+    out.mkdir(parents=True, exist_ok=True)
     for fold in args.folds:
         if args.gates:
             track_gates(study, args.study, fold, weights[rows[0], fold], out)
@@ -125,7 +135,7 @@ def main() -> None:
             name = f"{row}_{label}" if label else row
             result = study.track_row(
                 row, fold, "seen", weights[row, fold], out=f"outputs/{args.study}", experiment=args.study,
-                extra=extra, folder=name,
+                extra=extra, folder=name, data=args.data,
             )  # fmt: skip
             detector = weights[row, fold]
             piece = {"row": row, "fold": fold, "weights": str(detector) if detector else None, **result}

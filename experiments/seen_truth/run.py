@@ -163,11 +163,13 @@ def track_row(
     reid: Path | None = None,
     extra: tuple[str, ...] = (),
     folder: str | None = None,
+    data: str | None = None,
 ) -> dict:
     """Fold `fold` tracked against `truth` with Table 4's row `row` (its detector rows on `weights`), with
     the re-ID model `reid` (None: fold 3's shipped one) and the `extra` overrides after the row's own; its
     files go to `<out>/<truth>/<folder>/fold<k>` (folder default: the row, `<row>_own_reid` with another
-    re-ID), its MLflow run to `experiment`."""
+    re-ID), its MLflow run to `experiment`. `data` names another dataset of the same sequences to track
+    and score on than `truth`'s (its files then go to `<out>/<data>/...`)."""
     detector = [] if row.startswith("gt_") else [f"detector.weights={weights}"]
     folder = folder or (row if reid is None else f"{row}_own_reid")
     overrides = (
@@ -177,8 +179,8 @@ def track_row(
         + [
             f"reid.weights={reid or 'weights/reid_fold3.pt'}",
             f"fold={fold}",
-            f"data.name={TRUTHS[truth]}",
-            f"output_dir={out}/{truth}/{folder}/fold{fold}",
+            f"data.name={data or TRUTHS[truth]}",
+            f"output_dir={out}/{data or truth}/{folder}/fold{fold}",
             "video=false",
             "progress=false",
             f"logger.experiment={experiment}",
