@@ -208,13 +208,13 @@ def test_the_gate_study_sets_one_paper_setting_back_at_a_time_into_one_file_per_
     assert not (tmp_path / "wider" / "tracking" / "yolo_deepsort_paper_fold4.json").exists()
 
 
-def test_a_labelled_setting_is_tracked_after_each_rows_own_into_files_of_its_own(tmp_path, monkeypatch):
+def test_a_labelled_setting_or_another_labelling_is_tracked_into_files_of_its_own(tmp_path, monkeypatch):
     calls = []
 
     class Study:
         @staticmethod
         def track_row(row, fold, truth, weights, out, experiment, extra, folder, data=None):
-            calls.append((row, extra, folder))
+            calls.append((row, extra, folder, data))
             return metrics(0.65)
 
     driver = study_driver(tmp_path, monkeypatch, Study, fold=3)
@@ -233,32 +233,19 @@ def test_a_labelled_setting_is_tracked_after_each_rows_own_into_files_of_its_own
                                             "detector.score=objectness"])  # fmt: skip
     driver.main()
     assert calls == [
-        ("yolo_deepsort_paper", ("detector.score=objectness",), "yolo_deepsort_paper_objectness")
+        ("yolo_deepsort_paper", ("detector.score=objectness",), "yolo_deepsort_paper_objectness", None)
     ]
     tracking = tmp_path / "wider" / "tracking"
     piece = json.loads((tracking / "yolo_deepsort_paper_objectness_fold3.json").read_text())
     assert piece["row"] == "yolo_deepsort_paper" and piece["extra"] == ["detector.score=objectness"]
     assert not (tracking / "yolo_deepsort_paper_fold3.json").exists()  # Table 4's own row untouched
-
-
-def test_another_labelling_is_tracked_into_its_own_folder(tmp_path, monkeypatch):
-    calls = []
-
-    class Study:
-        @staticmethod
-        def track_row(row, fold, truth, weights, out, experiment, extra, folder, data=None):
-            calls.append((row, folder, data))
-            return metrics(0.7)
-
-    driver = study_driver(tmp_path, monkeypatch, Study, fold=3)
-    (tmp_path / "wider").mkdir()
-    argv = ["track.py", "--study", "wider", "--folds", "3", "--detectors", str(tmp_path / "det")]
+    # the same sequences labelled another way: into <study>/on_<data>/tracking
     monkeypatch.setattr("sys.argv", argv + ["--gates", "--data", "relabelled"])
     with pytest.raises(SystemExit, match="no --set or --data"):
         driver.main()
     monkeypatch.setattr("sys.argv", argv + ["--rows", "yolo_deepsort_paper", "--data", "relabelled"])
     driver.main()
-    assert calls == [("yolo_deepsort_paper", "yolo_deepsort_paper", "relabelled")]
+    assert calls[-1] == ("yolo_deepsort_paper", (), "yolo_deepsort_paper", "relabelled")
     piece = tmp_path / "wider" / "on_relabelled" / "tracking" / "yolo_deepsort_paper_fold3.json"
-    assert json.loads(piece.read_text())["metrics"]["mota"] == 0.7
-    assert not (tmp_path / "wider" / "tracking" / "yolo_deepsort_paper_fold3.json").exists()
+    assert json.loads(piece.read_text())["metrics"]["mota"] == 0.65
+    assert not (tracking / "yolo_deepsort_paper_fold3.json").exists()
