@@ -14,10 +14,9 @@ Two truths are offered (`TRUTH_MODES`, the dataset's `truth` key):
   function, `psf_sigma_px`) has spread it as the image spreads it: a lone faint pixel or a one-pixel rim
   just above the noise before the blur is below it in the image, and does not stretch the box over the
   dark body between it and the lit part (a rocket body lit only at its end keeps the box of that end).
-  A face turned from
-  the sun (black, as `ambient` 0 leaves it) is not seen against black space but is seen against a lit
-  planet or a lit target behind it; a target with no seen pixel is hidden in that frame like an
-  occluded one. This is the box a person marking what the image shows would draw.
+  A face turned from the sun (black, as `ambient` 0 leaves it) is not seen against black space but is
+  seen against a lit planet or a lit target behind it; a target with no seen pixel is hidden in that
+  frame like an occluded one. This is the box a person marking what the image shows would draw.
 Both come from the same plan and image: only the labels differ.
 """
 
