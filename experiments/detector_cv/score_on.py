@@ -6,8 +6,8 @@ holds the same sequences (same names, seeds and folds; the images may be the sam
 differ, as when the ground truth's definition changes). The scores go to
 `<study>/on_<dataset>/results/` with `results.json` and `results.md` beside them, in `run.py`'s format,
 so the two tables compare row by row, and `labels_<trained on>.json` says how the two datasets' labels
-differ (per scenario, every frame: boxes hidden or moved below IoU 0.5, `experiments/seen_truth/run.py`). A dataset whose sequences or folds differ is refused: a detector
-would be scored on sequences it trained on.
+differ (per scenario, every frame: boxes hidden or moved below IoU 0.5, `experiments/seen_truth/run.py`). A dataset whose sequences or folds differ is refused: a
+detector would be scored on sequences it trained on.
 
     python experiments/detector_cv/score_on.py --study finetune_lr --data space_default_psf
 """
@@ -75,6 +75,7 @@ def main() -> None:
     out = study / f"on_{args.data}"
     (out / "results").mkdir(parents=True, exist_ok=True)
     uri = tracking_uri()
+    checked: set[Path] = set()  # datasets the pieces were trained on, compared with args.data once each
     for fold in args.folds:
         for slug in args.variants.split(","):
             source = study / "results" / f"{slug}_fold{fold}.json"
@@ -85,12 +86,13 @@ def main() -> None:
             cfg = cv.variant_config(slug, fold, [*piece["overrides"], f"data.name={args.data}"], study)
             root = Path(cfg.data_root)
             before, after = root / trained_dataset(piece), root / args.data
-            check_same_sequences(before, after)
-            labels = out / f"labels_{before.name}.json"
-            if not labels.is_file():  # how the labels differ, every frame
-                atomic_write_text(
-                    labels, json.dumps(seen_truth.truth_changes(before, after), indent=2) + "\n"
-                )
+            if before not in checked:
+                check_same_sequences(before, after)
+                labels = out / f"labels_{before.name}.json"
+                if not labels.is_file():  # how the labels differ, every frame
+                    changes = seen_truth.truth_changes(before, after)
+                    atomic_write_text(labels, json.dumps(changes, indent=2) + "\n")
+                checked.add(before)
             if target.is_file():
                 continue
             weights = artifact_file(piece["run_id"], "weights/best.pt", tracking_uri=uri)

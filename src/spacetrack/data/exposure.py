@@ -22,6 +22,13 @@ import numpy as np
 
 from spacetrack.data.frame_store import FrameStore
 
+# The gains drawn by default (`train.augment.exposure_gain`): the dim scenario's exposure is about a
+# fifth of the nominal one, the strong-light scenario's with its jumps up to three times.
+DEFAULT_GAIN = (0.15, 3.0)
+# The noise a dimmed sample gets: the dim scenario's read and shot noise and the renderer's black level
+# (`conf/data/scenario/dim.yaml`, `spacetrack.data.scenario.ScenarioParams`).
+DIM_NOISE = {"read_noise_dn": 2.0, "shot_noise": 0.7, "black_level_dn": 2.0}
+
 
 def exposure_probability(p: float) -> float:
     """`p` checked as the probability of re-exposing a sample (`train.augment.exposure`)."""
@@ -65,40 +72,22 @@ def reexpose(
 
 
 class Exposure(A.ImageOnlyTransform):
-    """Re-expose the image by a gain drawn log-uniformly from `gain` ([low, high]); boxes are untouched.
+    """Re-expose the image by a gain drawn log-uniformly from `gain` ([low, high]), with `DIM_NOISE`;
+    boxes are untouched."""
 
-    The noise parameters are those of the sensor model (`spacetrack.data.scenario.ScenarioParams`);
-    the defaults are the dim scenario's read and shot noise and the renderer's black level.
-    """
-
-    def __init__(
-        self,
-        gain: tuple[float, float] = (0.15, 3.0),
-        read_noise_dn: float = 2.0,
-        shot_noise: float = 0.7,
-        black_level_dn: float = 2.0,
-        p: float = 0.5,
-    ) -> None:
+    def __init__(self, gain: Sequence[float] = DEFAULT_GAIN, p: float = 0.5) -> None:
         super().__init__(p=p)
         self.gain = gain_range(gain)
-        self.read_noise_dn, self.shot_noise, self.black_level_dn = read_noise_dn, shot_noise, black_level_dn
 
     def get_params(self) -> dict[str, Any]:
         gain = log_uniform(self.py_random.random(), *self.gain)
         return {"gain": gain, "noise_seed": self.py_random.getrandbits(63)}
 
     def apply(self, img: np.ndarray, gain: float = 1.0, noise_seed: int = 0, **params: Any) -> np.ndarray:
-        return reexpose(
-            img,
-            gain,
-            np.random.default_rng(noise_seed),
-            read_noise_dn=self.read_noise_dn,
-            shot_noise=self.shot_noise,
-            black_level_dn=self.black_level_dn,
-        )
+        return reexpose(img, gain, np.random.default_rng(noise_seed), **DIM_NOISE)
 
     def get_transform_init_args_names(self) -> tuple[str, ...]:
-        return ("gain", "read_noise_dn", "shot_noise", "black_level_dn")
+        return ("gain",)
 
 
 class FrameExposure:
@@ -107,7 +96,7 @@ class FrameExposure:
     The DWT/HSV enhancement adapts to each frame (its brightening follows the frame's mean, its stretch
     the frame's percentiles), so a dim exposure must be made before it, on the whole frame, as a dim
     frame would reach it: with probability `p` a sample's frame is read unenhanced from `raw`,
-    re-exposed by a gain drawn log-uniformly from `gain` and enhanced by `enhancer` (about 50 ms of CPU a
+    re-exposed by a gain drawn log-uniformly from `gain` (with `DIM_NOISE`) and enhanced by `enhancer` (about 50 ms of CPU a
     640x480 frame); otherwise (None) the dataset reads its cached enhanced frame.
     """
 
@@ -118,20 +107,12 @@ class FrameExposure:
         *,
         p: float,
         gain: Sequence[float],
-        read_noise_dn: float = 2.0,
-        shot_noise: float = 0.7,
-        black_level_dn: float = 2.0,
     ) -> None:
         self.raw, self.enhancer = raw, enhancer
         self.p, self.gain = exposure_probability(p), gain_range(gain)
-        self.noise = {
-            "read_noise_dn": read_noise_dn,
-            "shot_noise": shot_noise,
-            "black_level_dn": black_level_dn,
-        }
 
     def __call__(self, seq: str, index: int, rng: np.random.Generator) -> np.ndarray | None:
         if rng.random() >= self.p:
             return None
         gain = log_uniform(rng.random(), *self.gain)
-        return self.enhancer(reexpose(np.asarray(self.raw.frame(seq, index)), gain, rng, **self.noise))
+        return self.enhancer(reexpose(np.asarray(self.raw.frame(seq, index)), gain, rng, **DIM_NOISE))

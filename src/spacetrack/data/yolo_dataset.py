@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from spacetrack.data.exposure import Exposure, FrameExposure, exposure_probability
+from spacetrack.data.exposure import DEFAULT_GAIN, Exposure, FrameExposure, exposure_probability
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import frame_paths, read_rgb
 
@@ -91,14 +91,14 @@ def build_augmentation(
     translate: float,
     fill: int = PAD_VALUE,
     exposure: float = 0.0,
-    exposure_gain: Sequence[float] = (0.15, 3.0),
+    exposure_gain: Sequence[float] = DEFAULT_GAIN,
 ) -> A.Compose:
     """Re-exposure (probability, gain range: `spacetrack.data.exposure`), HSV jitter (albumentations shift
     limits), flips (probabilities), scale and translate (fractions); `fill` is the grey level of pixels the
     affine move brings in."""
     return A.Compose(
         [
-            Exposure(gain=tuple(exposure_gain), p=exposure_probability(exposure)),
+            Exposure(gain=exposure_gain, p=exposure_probability(exposure)),
             A.HueSaturationValue(
                 hue_shift_limit=hue, sat_shift_limit=saturation, val_shift_limit=value, p=0.5
             ),
