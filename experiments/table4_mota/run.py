@@ -59,6 +59,7 @@ REFERENCE_MATCHING = [
     "tracker.reacquire_gate=null",
     "tracker.coast_in_view=false",
     "tracker.occluded_area=null",
+    "tracker.low_confidence=null",
 ]
 NOFILTER = ["dynamic_filter=false"] + PAPER
 PAPER_FILTER = ["dynamic_filter=frame", "dynamic_hold.frames=0"] + PAPER  # the paper's per-frame filter
@@ -205,8 +206,10 @@ def _without_unused(settings: dict) -> dict:
     }
     if settings["detector"].get("score") == "class":
         del settings["detector"]["score"]  # a detection's score was always objectness x class before
+    if settings["detector"].get("agnostic_nms") is False:
+        del settings["detector"]["agnostic_nms"]  # and NMS per class
     before_options = (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None),
-                      ("coast_in_view", False), ("occluded_area", None))  # fmt: skip
+                      ("coast_in_view", False), ("occluded_area", None), ("low_confidence", None))  # fmt: skip
     for key, before in before_options:
         if key in settings["tracker"] and settings["tracker"][key] == before:
             del settings["tracker"][key]

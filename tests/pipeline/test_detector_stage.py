@@ -11,11 +11,17 @@ from spacetrack.models.yolo import YOLOv5
 from spacetrack.pipeline import YoloDetector
 
 
-def test_boxes_are_tlwh_inside_the_frame(tmp_path):
+def random_checkpoint(tmp_path):
+    """A random-init three-class YOLOv5 (narrow) saved as a `best.pt`."""
     torch.manual_seed(0)
     model = YOLOv5(num_classes=3, depth_multiple=0.33, width_multiple=0.125)
     weights = tmp_path / "best.pt"
     save_checkpoint(weights, {"arch": model.arch, "ema": model.state_dict()})
+    return weights
+
+
+def test_boxes_are_tlwh_inside_the_frame(tmp_path):
+    weights = random_checkpoint(tmp_path)
     detector = YoloDetector(weights=weights, image_size=128, conf_threshold=0.0, max_det=50, device="cpu")
     rgb = np.random.default_rng(0).integers(0, 255, (90, 200, 3), dtype=np.uint8)
     boxes = detector(rgb, 1)
@@ -28,23 +34,33 @@ def test_boxes_are_tlwh_inside_the_frame(tmp_path):
         YoloDetector(weights=weights, image_size=100)
 
 
-def test_objectness_scores_are_never_below_class_scores_and_name_the_score_in_the_identity(tmp_path):
-    torch.manual_seed(0)
-    model = YOLOv5(num_classes=3, depth_multiple=0.33, width_multiple=0.125)
-    weights = tmp_path / "best.pt"
-    save_checkpoint(weights, {"arch": model.arch, "ema": model.state_dict()})
-    rgb = np.random.default_rng(1).integers(0, 255, (64, 96, 3), dtype=np.uint8)
+def detector_pair(tmp_path, seed: int, iou_threshold: float, **changed):
+    """A random 64x96 frame, and a random checkpoint as two detectors keeping every box NMS leaves: with
+    the defaults, and with `changed`."""
+    rgb = np.random.default_rng(seed).integers(0, 255, (64, 96, 3), dtype=np.uint8)
     kwargs = {
-        "weights": weights,
+        "weights": random_checkpoint(tmp_path),
         "conf_threshold": 0.0,
-        "iou_threshold": 1.0,
+        "iou_threshold": iou_threshold,
         "max_det": 10_000,
         "device": "cpu",
     }
-    by_class, by_object = YoloDetector(**kwargs), YoloDetector(**kwargs, score="objectness")
+    return rgb, YoloDetector(**kwargs), YoloDetector(**kwargs, **changed)
+
+
+def test_objectness_scores_are_never_below_class_scores_and_name_the_score_in_the_identity(tmp_path):
+    rgb, by_class, by_object = detector_pair(tmp_path, 1, iou_threshold=1.0, score="objectness")
     class_boxes, object_boxes = by_class(rgb, 1), by_object(rgb, 1)
     assert len(class_boxes) == len(object_boxes) > 0  # NMS off: one box per anchor either way
     assert object_boxes[:, 4].max() > class_boxes[:, 4].max()  # a class probability is under 1
     assert "score=" not in by_class.identity and "score=objectness" in by_object.identity
     with pytest.raises(ValueError, match="detector.score must be one of class, objectness, got 'best'"):
-        YoloDetector(weights=weights, score="best")
+        YoloDetector(weights=by_class.weights, score="best")
+
+
+def test_agnostic_nms_reaches_the_detector_and_names_itself(tmp_path):
+    rgb, per_class, agnostic = detector_pair(tmp_path, 2, iou_threshold=0.3, agnostic_nms=True)
+    kept_per_class, kept_agnostic = per_class(rgb, 1), agnostic(rgb, 1)
+    assert 0 < len(kept_agnostic) < len(kept_per_class)  # boxes of other classes now suppress each other
+    assert len(np.unique(kept_agnostic[:, 5])) > 1  # each box keeps its own name
+    assert "nms=" not in per_class.identity and "nms=agnostic" in agnostic.identity

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spacetrack.tracking import DeepSort
+from spacetrack.tracking import DeepSort, deepsort
 
 ORIGINAL = dict(
     max_cosine_distance=0.2,
@@ -202,3 +202,66 @@ def test_occluded_area_keeps_the_identity_of_a_target_an_occluder_sweeps_over():
     assert abs(out[25][1][0] - 275) < 2
     with pytest.raises(ValueError, match="occluded_area"):
         DeepSort(**ORIGINAL, occluded_area=1.0)
+
+
+def _faded_target(low_score=0.3):
+    """A target moving 4 px/frame right, scored 0.9 except on frames 10-19, where the detector scores it
+    `low_score`; a second box at `low_score` far from it on every frame (clutter, never a target)."""
+    frames = []
+    for f in range(30):
+        score = low_score if 10 <= f < 20 else 0.9
+        frames.append([(100 + 4 * f, 100, 20, 40, 0, score), (400, 300, 20, 40, 1, low_score)])
+    return frames
+
+
+def run_scored(frames, **overrides):
+    """Like `run`, with each detection's score as its 6th entry."""
+    tracker = DeepSort(**{**ORIGINAL, "min_confidence": 0.5, **overrides})
+    outputs = []
+    for dets in frames:
+        tlwh = np.array([d[:4] for d in dets], dtype=float).reshape(-1, 4)
+        feature = np.array([FEATURES[d[4]] for d in dets]).reshape(-1, 4)
+        rows = tracker.step(tlwh, np.array([d[5] for d in dets]), feature)
+        outputs.append({int(r[0]): r[1:] for r in rows})
+    return outputs
+
+
+def test_low_confidence_keeps_a_track_through_frames_the_detector_scores_low():
+    reference = run_scored(_faded_target())
+    assert all(not reference[f] for f in range(11, 20))  # below min_confidence: a gap in the output
+    out = run_scored(_faded_target(), low_confidence=0.2)
+    assert all(out[f].keys() == {1} for f in range(2, 30))  # one track throughout, no gap
+    assert abs(out[15][1][0] - (100 + 4 * 15)) < 2  # on the low-scored box, not a drifting prediction
+    assert not any(ids_near(o, 400) for o in out)  # a low-scored box alone never starts a track
+
+
+def test_low_confidence_takes_only_boxes_at_its_floor_and_near_the_track():
+    assert all(not run_scored(_faded_target(low_score=0.1), low_confidence=0.2)[f] for f in range(11, 20))
+    far = [[(d[0] + (60 if 10 <= f < 20 else 0), *d[1:])  # the low-scored box 60 px off the track
+            for d in dets] for f, dets in enumerate(_faded_target())]  # fmt: skip
+    assert all(not run_scored(far, low_confidence=0.2)[f] for f in range(11, 20))
+
+
+@pytest.mark.parametrize("guard", [True, False])
+def test_a_low_scored_duplicate_of_a_kept_box_is_not_a_second_target(guard, monkeypatch):
+    # target 1 (x 100) matched by its high box; target 2 (x 112) undetected for a frame, whose predicted box
+    # the low-scored duplicate of target 1 (x 104: the same object named with another class) overlaps
+    if not guard:
+        monkeypatch.setattr(deepsort, "LOW_DUPLICATE_IOU", 1.01)
+    tracker = DeepSort(**{**ORIGINAL, "min_confidence": 0.5, "low_confidence": 0.2, "nms_max_overlap": 1.0})
+    for _ in range(6):
+        rows = tracker.step(
+            np.array([[100, 100, 20, 40], [112, 100, 20, 40]]), np.array([0.9, 0.9]), FEATURES[:2]
+        )
+    (second_id,) = [int(r[0]) for r in rows if r[1] == 112]
+    tracker.step(np.array([[100, 100, 20, 40], [104, 100, 20, 40]]), np.array([0.9, 0.3]), FEATURES[[0, 0]])
+    second = next(t for t in tracker.tracker.tracks if t.track_id == second_id)
+    assert second.time_since_update == (1 if guard else 0)  # with the guard it coasts on its prediction
+
+
+@pytest.mark.parametrize("value", [-0.1, 0.5, 0.7])
+def test_low_confidence_outside_zero_to_min_confidence_is_refused(value):
+    with pytest.raises(
+        ValueError, match=rf"tracker.low_confidence must lie in \[0, min_confidence = 0.5\).*{value}"
+    ):
+        DeepSort(**{**ORIGINAL, "min_confidence": 0.5, "low_confidence": value})

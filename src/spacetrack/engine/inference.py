@@ -48,12 +48,18 @@ def frame_detections(
     iou_threshold: float,
     max_det: int,
     score: str = "class",
+    agnostic: bool = False,
 ) -> list[np.ndarray]:
     """NMS of decoded network predictions (B, N, 5 + classes), then per frame an (n, 6) float array
     `x1, y1, x2, y2, score, class` in the pixels of that frame (its `network_input` in `prepared`, its
-    (H, W) in `shapes`), best score first; `score` as in `non_max_suppression`."""
+    (H, W) in `shapes`), best score first; `score` and `agnostic` as in `non_max_suppression`."""
     detections = non_max_suppression(
-        predictions, conf_threshold=conf_threshold, iou_threshold=iou_threshold, max_det=max_det, score=score
+        predictions,
+        conf_threshold=conf_threshold,
+        iou_threshold=iou_threshold,
+        max_det=max_det,
+        score=score,
+        agnostic=agnostic,
     )
     return [
         to_frame_boxes(det.cpu().numpy(), scale, pad, shape)

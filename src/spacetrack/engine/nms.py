@@ -24,6 +24,7 @@ def non_max_suppression(
     max_det: int = 300,
     multi_label: bool = False,
     score: str = "class",
+    agnostic: bool = False,
 ) -> list[torch.Tensor]:
     """Per image an (n, 6) tensor `x1, y1, x2, y2, score, class` (xyxy pixels), best score first.
 
@@ -37,6 +38,10 @@ def non_max_suppression(
     `score="objectness"` scores each box by its objectness alone, still named by its best class: whether
     there is a target at all, however the model splits it between classes (for a tracker that follows
     every class alike). Not with `multi_label`.
+
+    `agnostic`: NMS over every class at once, so a target the model names two ways keeps one box, its
+    best-scored (what a tracker that follows every class alike wants); per class by default (YOLOv5's
+    validation, and the mAP).
     """
     check_score(score)
     if multi_label and score != "class":
@@ -58,6 +63,7 @@ def non_max_suppression(
                 cls = torch.zeros_like(conf, dtype=torch.long)
             keep = conf > conf_threshold
             boxes, conf, cls = xywh_to_xyxy(p[keep, :4]), conf[keep], cls[keep]
-        kept = batched_nms(boxes.float(), conf.float(), cls, iou_threshold)[:max_det]
+        groups = torch.zeros_like(cls) if agnostic else cls
+        kept = batched_nms(boxes.float(), conf.float(), groups, iou_threshold)[:max_det]
         out.append(torch.cat((boxes[kept], conf[kept, None], cls[kept, None].to(boxes.dtype)), dim=1))
     return out

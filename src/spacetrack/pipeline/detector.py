@@ -86,7 +86,10 @@ class YoloDetector:
         targets).
     conf_threshold: detections scoring below this are dropped (keep it below the tracker's
         `min_confidence`, so that the cache serves every tracker setting).
-    iou_threshold: NMS IoU limit between boxes of one class.
+    iou_threshold: NMS IoU limit between boxes of one class (of any class with `agnostic_nms`).
+    agnostic_nms: NMS over every class at once: a target the network names two ways (a rocket body seen
+        end-on is a disc, like debris) keeps one box instead of two, which the tracker, following every
+        class alike, would take for two targets. False: per class (YOLOv5's, how the mAP is measured).
     score: what a detection's score is, the number the tracker's `min_confidence` compares: "class"
         (objectness times the best class probability, YOLOv5's, the default) or "objectness" (objectness
         alone: whether there is a target, however the model splits it between the classes, which the
@@ -118,6 +121,7 @@ class YoloDetector:
         iou_threshold: float = 0.45,
         max_det: int = 100,
         score: str = "class",
+        agnostic_nms: bool = False,
         device: str = "auto",
         backend: str = "torch",
         threads: int = 0,
@@ -144,12 +148,15 @@ class YoloDetector:
         self._channels_last = self.network is not None and self.device.type == "cpu" and CHANNELS_LAST_CPU
         self.image_size, self.conf_threshold = image_size, conf_threshold
         self.iou_threshold, self.max_det, self.score = iou_threshold, max_det, score
+        self.agnostic_nms = bool(agnostic_nms)
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
             f"iou={iou_threshold} backend={self.backend}"
         )
         if score != "class":  # the default leaves the identity, and so the caches made before, as they were
             self.identity += f" score={score}"
+        if self.agnostic_nms:
+            self.identity += " nms=agnostic"
         if self.backend == "onnxruntime_int8":
             self.identity += f" calibration={self.calibration}"
 
@@ -207,6 +214,7 @@ class YoloDetector:
             iou_threshold=self.iou_threshold,
             max_det=self.max_det,
             score=self.score,
+            agnostic=self.agnostic_nms,
         )
         return np.column_stack([det[:, :2], det[:, 2:4] - det[:, :2], det[:, 4:6]])
 

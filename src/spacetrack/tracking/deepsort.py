@@ -13,10 +13,15 @@ from spacetrack.tracking.camera_motion import CameraMotion
 from spacetrack.tracking.detection import Detections
 from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.io import FEATURES, iter_frames
+from spacetrack.tracking.iou_matching import iou_matrix
 from spacetrack.tracking.kalman_filter import CHI2_95_4DOF
 from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
 from spacetrack.tracking.preprocessing import filter_detections
 from spacetrack.tracking.tracker import Tracker
+
+# A low-scored detection overlapping a kept one at this IoU or more is that object named again (the
+# detector suppresses overlaps within a class only), not a second target.
+LOW_DUPLICATE_IOU = 0.5
 
 
 class DeepSort:
@@ -43,6 +48,11 @@ class DeepSort:
         reference does.
     occluded_area: beyond the reference, a matched box under this share of its track's whole area
         (an occluder cuts it) leaves the track's state as predicted (see `Tracker`); None: the reference.
+    low_confidence: beyond the reference, detections scoring from this up to `min_confidence` are kept
+        aside (not when a kept detection overlaps them at IoU `LOW_DUPLICATE_IOU` or more: the same object
+        named twice) and serve only to keep confirmed tracks that every other stage left unmatched, by box
+        overlap (ByteTrack's second association, see `Tracker`); they never start a track. None: dropped,
+        as the reference does.
     """
 
     def __init__(
@@ -64,7 +74,13 @@ class DeepSort:
         reacquire_gate: float | None = None,
         coast_in_view: bool = False,
         occluded_area: float | None = None,
+        low_confidence: float | None = None,
     ) -> None:
+        if low_confidence is not None and not 0.0 <= low_confidence < min_confidence:
+            raise ValueError(
+                f"tracker.low_confidence must lie in [0, min_confidence = {min_confidence}) or be null, "
+                f"got {low_confidence}"
+            )
         metric = None
         if max_cosine_distance is not None:
             metric = NearestNeighborDistanceMetric(
@@ -85,6 +101,7 @@ class DeepSort:
         )
         self.camera = CameraMotion(camera_motion)
         self.min_confidence = min_confidence
+        self.low_confidence = low_confidence
         self.nms_max_overlap = nms_max_overlap
         self.min_detection_height = min_detection_height
 
@@ -108,29 +125,49 @@ class DeepSort:
         image: the frame (RGB or grey uint8), for `camera_motion`; None applies no shift.
         Returns the frame's output tracks as rows (track id, x, y, w, h), box `tlwh` of the track state.
         """
-        keep = filter_detections(
-            tlwh,
-            confidence,
-            min_confidence=self.min_confidence,
-            nms_max_overlap=self.nms_max_overlap,
-            min_detection_height=self.min_detection_height,
-        )
-        tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)[keep]
-        confidence = np.asarray(confidence, dtype=float).reshape(-1)[keep]
+        tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
+        confidence = np.asarray(confidence, dtype=float).reshape(-1)
         if feature is not None:
-            feature = np.asarray(feature, dtype=float)[keep]
+            feature = np.asarray(feature, dtype=float)
         if dynamic is not None:
-            dynamic = np.asarray(dynamic, dtype=bool).reshape(-1)[keep]
+            dynamic = np.asarray(dynamic, dtype=bool).reshape(-1)
+
+        def chosen(keep: np.ndarray) -> Detections:
+            return Detections.create(
+                tlwh[keep],
+                confidence[keep],
+                None if feature is None else feature[keep],
+                None if dynamic is None else dynamic[keep],
+            )
+
+        keep = self._kept(tlwh, confidence, self.min_confidence)
+        low = None
+        if self.low_confidence is not None:
+            under = np.where(confidence < self.min_confidence, confidence, -np.inf)  # the kept ones left out
+            below = self._kept(tlwh, under, self.low_confidence)
+            duplicate = iou_matrix(tlwh[below], tlwh[keep]).max(axis=1, initial=0.0) >= LOW_DUPLICATE_IOU
+            low = chosen(below[~duplicate])
         shift = self.camera.update(image)
         self.tracker.predict((float(shift[0]), float(shift[1])))
         offset = self.camera.offset
         self.tracker.update(
-            Detections.create(tlwh, confidence, feature, dynamic),
+            chosen(keep),
             (float(offset[0]), float(offset[1])),
             camera_moving=self.camera.moving,
             frame_size=None if image is None else (image.shape[1], image.shape[0]),
+            low=low,
         )
         return track_rows(self.tracker.outputs())
+
+    def _kept(self, tlwh: np.ndarray, confidence: np.ndarray, floor: float) -> np.ndarray:
+        """Indices of the detections scoring `floor` or more that pass the height floor and NMS."""
+        return filter_detections(
+            tlwh,
+            confidence,
+            min_confidence=floor,
+            nms_max_overlap=self.nms_max_overlap,
+            min_detection_height=self.min_detection_height,
+        )
 
     def matched_tracks(self) -> np.ndarray:
         """Rows (track id, x, y, w, h) of every track matched to a detection this frame, output or not."""

@@ -117,26 +117,34 @@ class Tracker:
         *,
         camera_moving: bool = False,
         frame_size: tuple[int, int] | None = None,
+        low: Detections | None = None,
     ) -> None:
         """Associate this frame's `detections`, update matched tracks, age the others, start new ones.
 
         offset: the scene's displacement (x, y pixels) in this frame since the first one, for the motion
         evidence of `dynamics`; camera_moving: whether the camera has been found moving (`dynamics` may
         then stop trusting the blobs); frame_size: the image's (width, height), if known.
+        low: beyond the reference, low-scored detections offered last, by box overlap (1 - IoU at most
+        `max_iou_distance`, the track's predicted box however long it has gone unmatched), to the confirmed
+        tracks that no stage matched (ByteTrack's second association: a target the detector scores low for
+        a few frames keeps its track instead of leaving a gap); they add no appearance feature and start
+        no track.
         """
         self._camera_moving, self._frame_size = camera_moving, frame_size
         matches, unmatched_tracks, unmatched_detections = self._match(detections)
-        if matches:
-            t_idx, d_idx = map(list, zip(*matches, strict=True))
-            tracks = [self.tracks[i] for i in t_idx]
-            predicted = self._states(tracks)
-            means, covs = self.kf.update(*predicted, detections.subset(d_idx).to_xyah())
-            if self.occluded_area is not None:
-                self._hold_occluded(tracks, detections.tlwh[d_idx], predicted, means, covs)
-            use_features = self.metric is not None
-            for track, mean, cov, d in zip(tracks, means, covs, d_idx, strict=True):
-                track.hit(mean, cov, detections.feature[d] if use_features else None)
-                self._observe(track, detections, d, offset)
+        low_matches: list[tuple[int, int]] = []
+        if low is not None and len(low):
+            confirmed = [k for k in unmatched_tracks if self.tracks[k].is_confirmed()]
+            low_matches, _, _ = min_cost_matching(
+                lambda t, d: 1.0 - iou_matrix(self._boxes([self.tracks[k] for k in t]), low.tlwh[d]),
+                self.max_iou_distance,
+                confirmed,
+                list(range(len(low))),
+            )
+            taken = {k for k, _ in low_matches}
+            unmatched_tracks = [k for k in unmatched_tracks if k not in taken]
+        self._update_matched(matches, detections, offset, features=True)
+        self._update_matched(low_matches, low, offset, features=False)
         for i in unmatched_tracks:
             self.tracks[i].mark_missed()
         for d in unmatched_detections:
@@ -145,6 +153,28 @@ class Tracker:
         self.tracks = [t for t in self.tracks if not t.is_deleted()]
         if self.metric is not None:
             self._fit_metric()
+
+    def _update_matched(
+        self,
+        matches: list[tuple[int, int]],
+        detections: Detections,
+        offset: tuple[float, float],
+        *,
+        features: bool,
+    ) -> None:
+        """Correct each matched track by its detection; `features`: also gather the detection's appearance."""
+        if not matches:
+            return
+        t_idx, d_idx = map(list, zip(*matches, strict=True))
+        tracks = [self.tracks[i] for i in t_idx]
+        predicted = self._states(tracks)
+        means, covs = self.kf.update(*predicted, detections.subset(d_idx).to_xyah())
+        if self.occluded_area is not None:
+            self._hold_occluded(tracks, detections.tlwh[d_idx], predicted, means, covs)
+        use_features = features and self.metric is not None
+        for track, mean, cov, d in zip(tracks, means, covs, d_idx, strict=True):
+            track.hit(mean, cov, detections.feature[d] if use_features else None)
+            self._observe(track, detections, d, offset)
 
     def outputs(self) -> list[tuple[int, np.ndarray]]:
         """(track id, box `tlwh`) of the confirmed tracks matched this frame or the one before.
