@@ -66,6 +66,8 @@ ROWS = {
     "dwt_hsv_gam": ("gam_deepsort_paper", "gt_deepsort_paper"),
 }
 SHRUNK_IOU = 0.5
+# what a tracked piece keeps of `spacetrack.track`'s metrics (the class accuracies: each track's voted class)
+TRACK_METRICS = ("mota", "hota", "idf1", "idsw", "fp", "fn", "class_accuracy", "class_accuracy_frame")
 OWN_REID = "+own_reid"  # suffix of a row tracked with the fold's own re-ID model instead of fold 3's
 
 
@@ -189,7 +191,7 @@ def track_row(
     start = time.time()
     metrics = track.run(compose_config("track", overrides))
     return {
-        "metrics": {k: metrics[k] for k in ("mota", "hota", "idf1", "idsw", "fp", "fn") if k in metrics},
+        "metrics": {k: metrics[k] for k in TRACK_METRICS if k in metrics},
         "command": "python -m spacetrack.track " + " ".join(overrides),
         "seconds": round(time.time() - start, 1),
     }

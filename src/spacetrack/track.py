@@ -11,12 +11,14 @@ import json
 import logging
 from pathlib import Path
 
+import numpy as np
 import torch
 from omegaconf import DictConfig
 
 from spacetrack import cli
 from spacetrack.data.layout import load_manifest, read_mot, split_sequences
 from spacetrack.evaluation import OVERALL, evaluate
+from spacetrack.evaluation.mot import class_accuracy, named_matches
 from spacetrack.io import atomic_write_text
 from spacetrack.mlflow_log import log_artifact_file, log_metrics_step, start_run
 from spacetrack.motion.dynamic import DynamicHold
@@ -140,8 +142,11 @@ def _track_source(
     return run_source(source, setup, output, cache=cache, key=cache_key(cfg, weights, source))
 
 
-def _sequence_metrics(cfg: DictConfig, result: SequenceResult, gt_path: Path | None, pairs: dict) -> dict:
-    """Speed, and the scores against `gt_path` when there is one (its (gt, hyp) pair added to `pairs`)."""
+def _sequence_metrics(
+    cfg: DictConfig, result: SequenceResult, gt_path: Path | None, pairs: dict, named: dict
+) -> dict:
+    """Speed, and the scores against `gt_path` when there is one (its (gt, hyp) pair added to `pairs`, its
+    matched boxes' classes to `named`: how well the tracks' voted classes name the targets)."""
     metrics = {"fps": result.num_frames / result.wall_seconds, **result.timings}
     if gt_path is None:
         return metrics
@@ -150,12 +155,23 @@ def _sequence_metrics(cfg: DictConfig, result: SequenceResult, gt_path: Path | N
     scores = evaluate(
         {result.name: pairs[result.name]}, iou_threshold=cfg.iou_threshold, min_visibility=cfg.min_visibility
     )[result.name]
-    return metrics | {k: scores[k] for k in SCORES}
+    metrics |= {k: scores[k] for k in SCORES}
+    if result.classes is not None:  # not after offline post-processing, whose boxes no detection named
+        named[result.name] = named_matches(
+            *pairs[result.name],
+            result.classes,
+            iou_threshold=cfg.iou_threshold,
+            min_visibility=cfg.min_visibility,
+        )
+        metrics |= class_accuracy(named[result.name])
+    return metrics
 
 
 def _log_sequence(result: SequenceResult, metrics: dict) -> None:
     log_metrics_step({f"{result.name}/{k}": v for k, v in metrics.items()}, step=0)
     log_artifact_file(result.mot_path, "results")
+    if result.classes_path is not None and result.classes_path.is_file():
+        log_artifact_file(result.classes_path, "results")
     if result.video_path is not None:
         log_artifact_file(result.video_path, "video")
     log.info("%s: %s", result.name, _brief(metrics))
@@ -178,12 +194,13 @@ def run(cfg: DictConfig) -> dict[str, float]:
     run_name = f"fold{cfg.fold}" if cfg.fold is not None and cfg.sequence is None else None
     results: list[SequenceResult] = []
     pairs: dict = {}
+    named: dict = {}
     with start_run(cfg, run_name=run_name or sources[0][0].name, parent_run_id=cfg.sweep_parent_run_id):
         for source, gt_path in sources:
             result = _track_source(cfg, limit(source, cfg.max_frames), weights, stream, cache, out_dir)
             results.append(result)
-            _log_sequence(result, _sequence_metrics(cfg, result, gt_path, pairs))
-        metrics = summary(results, pairs, cfg)
+            _log_sequence(result, _sequence_metrics(cfg, result, gt_path, pairs, named))
+        metrics = summary(results, pairs, cfg, named)
         log_metrics_step(metrics, step=0)
         atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2) + "\n")
         log_artifact_file(out_dir / "metrics.json")
@@ -191,8 +208,11 @@ def run(cfg: DictConfig) -> dict[str, float]:
     return metrics
 
 
-def summary(results: list[SequenceResult], pairs: dict, cfg: DictConfig) -> dict[str, float]:
-    """Overall scores over all sequences with ground truth, and frame-weighted per-stage timings."""
+def summary(
+    results: list[SequenceResult], pairs: dict, cfg: DictConfig, named: dict | None = None
+) -> dict[str, float]:
+    """Overall scores over all sequences with ground truth (the class accuracies over the boxes of all
+    sequences in `named`), and frame-weighted per-stage timings."""
     frames = sum(r.num_frames for r in results)
     metrics: dict[str, float] = {
         "num_sequences": float(len(results)),
@@ -207,6 +227,8 @@ def summary(results: list[SequenceResult], pairs: dict, cfg: DictConfig) -> dict
     if pairs:
         overall = evaluate(pairs, iou_threshold=cfg.iou_threshold, min_visibility=cfg.min_visibility)[OVERALL]
         metrics |= {k: overall[k] for k in SCORES}
+    if named:
+        metrics |= class_accuracy(np.concatenate(list(named.values())))
     return metrics
 
 

@@ -165,3 +165,22 @@ def test_scoring_keeps_the_log_clean(caplog):
     caplog.set_level("INFO")
     evaluate({"s": (_mot([(1, 1, 0, 0, 20, 20)]), _mot([(1, 5, 0, 0, 20, 20)]))})
     assert "seconds" not in caplog.text  # motmetrics' timing messages
+
+
+def test_class_accuracy_of_matched_boxes_by_track_vote_and_by_frame():
+    from spacetrack.evaluation.mot import class_accuracy, named_matches
+
+    # target 1 (class 1) over 4 frames; target 2 (class 0) on frames 1-2; one result box off every target
+    gt = np.array([[f, 1, 10 * f, 0, 10, 10, 1, 1, 1.0] for f in range(1, 5)]
+                  + [[f, 2, 100, 100, 10, 10, 1, 0, 1.0] for f in (1, 2)])  # fmt: skip
+    hyp = np.array([[f, 5, 10 * f, 0, 10, 10, 1, -1, -1, -1] for f in range(1, 5)]
+                   + [[1, 6, 100, 100, 10, 10, 1, -1, -1, -1], [2, 6, 300, 300, 10, 10, 1, -1, -1, -1]])  # fmt: skip
+    # per result row: its own detection's class (-1: coasting), its track's vote
+    classes = np.array([[1, 1], [2, 1], [-1, 1], [1, 1], [2, 2], [0, 2]])
+    named = named_matches(gt, hyp, classes)
+    assert sorted(named.tolist()) == [[0, 2, 2], [1, -1, 1], [1, 1, 1], [1, 1, 1], [1, 2, 1]]
+    scores = class_accuracy(named)
+    assert scores["class_accuracy"] == pytest.approx(4 / 5)  # track 6 is named debris: wrong
+    assert scores["class_accuracy_frame"] == pytest.approx(2 / 4)  # the coasting box has no name of its own
+    assert scores["class_matches"] == 5
+    assert np.isnan(class_accuracy(np.zeros((0, 3)))["class_accuracy"])

@@ -17,6 +17,14 @@ from spacetrack.pipeline.weights import MissingWeightsError
 from spacetrack.tracking.io import load_detections
 
 STATIC_SEQ = "seq_005_static_distractors"
+# ground-truth boxes through SORT on the sequence with parked objects, no clip
+GT_SORT_STATIC = [
+    "detector=ground_truth",
+    "reid.weights=none",
+    "tracker=sort",
+    f"sequence={STATIC_SEQ}",
+    "video=false",
+]
 
 
 def _static_overlap(mot_path, static_path) -> int:
@@ -56,13 +64,7 @@ def test_pipeline_writes_results_video_metrics_and_cache(smoke_dataset, random_r
 
 @pytest.mark.slow
 def test_cache_serves_retracking_without_networks_and_filter_switch(smoke_dataset, tmp_path, monkeypatch):
-    common = [
-        "detector=ground_truth",
-        "reid.weights=none",
-        "tracker=sort",
-        f"sequence={STATIC_SEQ}",
-        "video=false",
-    ]
+    common = GT_SORT_STATIC
     first = track.run(track_config(smoke_dataset, tmp_path, *common))
 
     def no_networks(*args, **kwargs):
@@ -239,9 +241,9 @@ def test_the_video_draws_apart_exactly_the_static_boxes(smoke_dataset, tmp_path,
 
     drawn, real_call = [], runner.Annotator.__call__
 
-    def spy(self, rgb, tracks, static_tlwh, info=""):
+    def spy(self, rgb, tracks, static_tlwh, info="", **kwargs):
         drawn.append(np.asarray(static_tlwh))
-        return real_call(self, rgb, tracks, static_tlwh, info)
+        return real_call(self, rgb, tracks, static_tlwh, info, **kwargs)
 
     monkeypatch.setattr(runner.Annotator, "__call__", spy)
     common = ["detector=ground_truth", "reid.weights=none", "tracker=sort", f"sequence={STATIC_SEQ}"]
@@ -269,3 +271,21 @@ def test_offline_post_processing_only_adds_rows_and_closes_the_confirmation_gap(
     # the first n_init - 1 frames of each track come back: fewer misses, no more false positives
     assert offline["fn"] < online["fn"] and offline["fp"] <= online["fp"]
     assert offline["mota"] > online["mota"]
+
+
+def test_each_track_is_named_by_its_class_vote_and_scored_on_it(smoke_dataset, tmp_path):
+    common = GT_SORT_STATIC
+    metrics = track.run(track_config(smoke_dataset, tmp_path / "on", *common))
+    out = tmp_path / "on" / "out"
+    ids = set(np.loadtxt(out / f"{STATIC_SEQ}.txt", delimiter=",", ndmin=2)[:, 1].astype(int))
+    named = json.loads((out / f"{STATIC_SEQ}.classes.json").read_text())["tracks"]
+    assert ids <= {int(k) for k in named}  # every output track has its class (static ones too)
+    assert {v["name"] for v in named.values()} <= {"satellite", "rocket_body", "debris"}
+    assert all(v["share"] == 1.0 for v in named.values())  # ground-truth boxes never change their name
+    # ground-truth boxes carry the true classes: every matched box named right, by frame and by vote
+    assert (
+        metrics["class_accuracy"] == metrics["class_accuracy_frame"] == 1.0 and metrics["class_matches"] > 0
+    )
+    offline = track.run(track_config(smoke_dataset, tmp_path / "off", *common, "offline.enabled=true"))
+    assert "class_accuracy" not in offline  # interpolated boxes were named by no detection
+    assert (tmp_path / "off" / "out" / f"{STATIC_SEQ}.classes.json").is_file()

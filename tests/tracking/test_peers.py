@@ -108,3 +108,19 @@ def test_dynamics_output_only_the_track_that_moves(boxmot):
     assert len(out) == 1 and out[0, 1] == pytest.approx(tlwh[0, 0], abs=3)
     static = tracker.static_tracks()
     assert len(static) == 1 and static[0, 1] == pytest.approx(200, abs=1)
+
+
+def test_a_peer_votes_each_tracks_class_over_its_matched_boxes(boxmot):
+    tracker = _peer("bytetrack")
+    for f, (tlwh, conf, feature, _) in enumerate(_frames(12)):
+        # target 0 named satellite (0) but debris (2) on every 4th frame; target 1 always rocket body (1)
+        out = tracker.step(tlwh, conf, feature, classes=np.array([2 if f % 4 == 0 else 0, 1]))
+    named = tracker.output_classes()
+    assert named.shape == (len(out), 2) and len(out) == 2
+    by_target = {
+        int(np.argmin(np.abs(tlwh[:, 0] - row[1]))): tuple(k) for row, k in zip(out, named, strict=True)
+    }
+    assert by_target == {0: (0, 0), 1: (1, 1)}  # the frame's own name and the vote, both right on frame 11
+    votes = tracker.class_votes.table()
+    assert sorted(c for c, _ in votes.values()) == [0, 1]
+    assert min(share for _, share in votes.values()) < 1.0  # target 0's debris frames count against it

@@ -19,6 +19,7 @@ import motmetrics as mm
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from spacetrack.data.layout import CLASS
 from spacetrack.evaluation.hota import hota_scores, sequence_data
 from spacetrack.tracking.iou_matching import iou_matrix
 
@@ -165,3 +166,44 @@ def evaluate(
     for name, scores in hota_scores(data, OVERALL).items():
         out[name] |= scores
     return out
+
+
+def named_matches(
+    gt: np.ndarray,
+    hyp: np.ndarray,
+    hyp_classes: np.ndarray,
+    *,
+    iou_threshold: float = 0.5,
+    min_visibility: float = 0.0,
+) -> np.ndarray:
+    """(M, 3) int rows, one per result box matched to a target by `accumulate`: the target's class
+    (`gt` column CLASS), and the two names of `hyp_classes` (N, k >= 1 columns aligned with `hyp`'s rows,
+    e.g. the class of the frame's own detection and the track's voted class; -1: unnamed)."""
+    hyp_classes = np.asarray(hyp_classes, dtype=int).reshape(len(hyp), -1)
+    events = accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility).mot_events
+    matched = events[events["Type"] == "MATCH"]
+    gt_class = {(int(f), int(k)): int(c) for f, k, c in gt[:, [0, 1, CLASS]]}
+    hyp_row = {(int(f), int(k)): i for i, (f, k) in enumerate(hyp[:, :2])}
+    rows = [
+        (gt_class[frame, int(o)], *hyp_classes[hyp_row[frame, int(h)]])
+        for (frame, _), o, h in zip(matched.index, matched["OId"], matched["HId"], strict=True)
+    ]
+    return np.array(rows, dtype=int).reshape(-1, 1 + hyp_classes.shape[1])
+
+
+def class_accuracy(named: np.ndarray) -> dict[str, float]:
+    """From `named_matches` rows (target class, the frame's own detection class, the track's voted class):
+    `class_accuracy`, the share of matched boxes whose track's vote names the target right;
+    `class_accuracy_frame`, the share of matched boxes on a frame with their own detection that it names
+    right (the detector frame by frame); `class_matches`, how many matched boxes (NaN shares without)."""
+    named = np.asarray(named, dtype=int).reshape(-1, 3)
+    own = named[named[:, 1] >= 0]
+
+    def share(hit: np.ndarray) -> float:
+        return float(hit.mean()) if len(hit) else float("nan")
+
+    return {
+        "class_accuracy": share(named[:, 2] == named[:, 0]),
+        "class_accuracy_frame": share(own[:, 1] == own[:, 0]),
+        "class_matches": float(len(named)),
+    }

@@ -6,6 +6,7 @@ and the cache is valid only once its sidecar is written after its arrays.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack
@@ -17,7 +18,9 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from spacetrack.data.geometry import CLASS_NAMES
 from spacetrack.data.layout import BOX, CONF
+from spacetrack.io import atomic_write_text
 from spacetrack.motion.blobs import Blob
 from spacetrack.motion.dynamic import DynamicFilter, DynamicHold
 from spacetrack.pipeline.cache import CachedSequence, CacheKey, DetectionCache
@@ -26,6 +29,7 @@ from spacetrack.pipeline.sources import FrameSource
 from spacetrack.pipeline.stages import DetectionStream, FrameDetections, dynamic_flags
 from spacetrack.pipeline.timing import StageTimer
 from spacetrack.tracking import DeepSort
+from spacetrack.tracking.class_vote import UNKNOWN
 from spacetrack.tracking.io import FEATURES, write_mot_results
 from spacetrack.tracking.offline import OfflineSettings, post_process
 from spacetrack.viz.video import VideoWriter
@@ -33,7 +37,10 @@ from spacetrack.viz.video import VideoWriter
 
 @dataclass
 class SequenceResult:
-    """rows: (N, 6) `frame, id, x, y, w, h` tracker output (tlwh pixels); timings: ms per frame by stage."""
+    """rows: (N, 6) `frame, id, x, y, w, h` tracker output (tlwh pixels); timings: ms per frame by stage;
+    classes: (N, 2) per row the class of the detection its track matched on that frame (-1: none) and the
+    track's final voted class (None when offline post-processing changed the rows); track_classes:
+    {track id: (voted class, its share of the track's summed score)}."""
 
     name: str
     rows: np.ndarray
@@ -43,6 +50,9 @@ class SequenceResult:
     timings: dict[str, float] = field(default_factory=dict)
     mot_path: Path | None = None
     video_path: Path | None = None
+    classes: np.ndarray | None = None
+    track_classes: dict[int, tuple[int, float]] = field(default_factory=dict)
+    classes_path: Path | None = None
 
 
 def cached_frames(
@@ -158,6 +168,10 @@ class SequenceOutput:
     def paths(self, name: str) -> tuple[Path, Path | None]:
         return self.out_dir / f"{name}.txt", self.out_dir / f"{name}.mp4" if self.video else None
 
+    def classes_path(self, name: str) -> Path:
+        """`<name>.classes.json`: each track's voted class (`write_track_classes`)."""
+        return self.out_dir / f"{name}.classes.json"
+
 
 def run_source(
     source: FrameSource,
@@ -179,10 +193,17 @@ def run_source(
                disable=not output.progress, leave=False)  # fmt: skip
     mot_path, video_path = output.paths(source.name)
     matched = setup.offline is not None and setup.offline.backfill
-    rows_out, num_frames, matches = _track(bar, source, setup, timer, video_path=video_path, matched=matched)
+    rows_out, num_frames, matches, frame_classes = _track(
+        bar, source, setup, timer, video_path=video_path, matched=matched
+    )
+    track_classes = setup.tracker.class_votes.table()
     if setup.offline is not None:
-        rows_out = post_process(rows_out, matches, setup.offline)
+        rows_out, frame_classes = post_process(rows_out, matches, setup.offline), None
     write_mot_results(mot_path, rows_out)
+    write_track_classes(output.classes_path(source.name), track_classes)
+    if frame_classes is not None:  # the final vote, which the online rows only had so far
+        final = np.array([track_classes.get(int(k), (UNKNOWN, 0.0))[0] for k in rows_out[:, 1]], dtype=int)
+        frame_classes = np.column_stack([frame_classes[:, 0], final]).reshape(-1, 2)
     if cache is not None:
         _update_cache(cache, source.name, key, cached, recorded, rerun_motion, num_frames)
     return SequenceResult(
@@ -194,7 +215,25 @@ def run_source(
         timings=timer.ms_per_frame(num_frames),
         mot_path=mot_path,
         video_path=video_path if video_path is not None and video_path.is_file() else None,
+        classes=frame_classes,
+        track_classes=track_classes,
+        classes_path=output.classes_path(source.name),
     )
+
+
+def write_track_classes(path: Path, track_classes: dict[int, tuple[int, float]]) -> None:
+    """Write each track's voted class as JSON: `{"tracks": {"<id>": {"class": k, "name": ..., "share": s}}}`,
+    the share being the class's part of the summed scores of the track's matched detections; `name` from
+    the project's classes (`spacetrack.data.geometry.CLASS_NAMES`), null for an index outside them."""
+    tracks = {
+        str(k): {
+            "class": c,
+            "name": CLASS_NAMES[c] if 0 <= c < len(CLASS_NAMES) else None,
+            "share": round(share, 4),
+        }
+        for k, (c, share) in sorted(track_classes.items())
+    }
+    atomic_write_text(path, json.dumps({"tracks": tracks}, indent=1) + "\n")
 
 
 def _detections(
@@ -229,13 +268,14 @@ def _track(
     *,
     video_path: Path | None,
     matched: bool = False,
-) -> tuple[np.ndarray, int, np.ndarray | None]:
-    """Step the tracker through the frames: rows `frame, id, x, y, w, h` of its output, the frames seen
-    and, with `matched` (for offline backfill), the same rows of every track
-    matched to a detection on each frame. With `video_path`, the annotated frames are written there as
-    they come (replacing it at the end)."""
+) -> tuple[np.ndarray, int, np.ndarray | None, np.ndarray]:
+    """Step the tracker through the frames: rows `frame, id, x, y, w, h` of its output, the frames seen,
+    with `matched` (for offline backfill) the same rows of every track matched to a detection on each
+    frame, and per output row the tracker's `output_classes` (the class of the frame's own detection,
+    the track's vote so far). With `video_path`, the annotated frames are written there as they come
+    (replacing it at the end), each track labelled with its class so far."""
     tracker, mode, hold = setup.tracker, setup.mode, setup.hold
-    annotator, results = Annotator(), []
+    annotator, results, classes = Annotator(), [], []
     matches = [] if matched else None
     if hold is not None:
         hold.reset()
@@ -251,10 +291,13 @@ def _track(
                     dets[:, FEATURES],
                     dynamic=item.dynamic[keep] if mode == "track" else None,
                     image=item.image,
+                    classes=item.classes[keep],
                 )
+                named = tracker.output_classes()
             if hold is not None:
                 hold.update(out)
             results.append(np.column_stack([np.full(len(out), item.frame), out]))
+            classes.append(named)
             if matches is not None:
                 on_frame = tracker.matched_tracks()
                 matches.append(np.column_stack([np.full(len(on_frame), item.frame), on_frame]))
@@ -265,10 +308,20 @@ def _track(
                 static = _static_boxes(item, keep, mode, tracker)
                 info = f"{source.name} frame {item.frame}  tracks {len(out)}"
                 with timer("draw"):
-                    writer.write(annotator(item.image, out, static, info))
+                    writer.write(annotator(item.image, out, static, info, names=class_labels(named[:, 1])))
         if not results:
             raise ValueError(f"{source.description}: no frames")
-        return np.concatenate(results), len(results), np.concatenate(matches) if matches else None
+        return (
+            np.concatenate(results),
+            len(results),
+            np.concatenate(matches) if matches else None,
+            np.concatenate(classes).reshape(-1, 2),
+        )
+
+
+def class_labels(classes: np.ndarray) -> list[str]:
+    """The project's class name of each index (empty for UNKNOWN or an index outside them)."""
+    return [CLASS_NAMES[k] if 0 <= k < len(CLASS_NAMES) else "" for k in np.asarray(classes, dtype=int)]
 
 
 def _update_cache(

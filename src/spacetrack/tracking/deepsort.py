@@ -10,6 +10,7 @@ import numpy as np
 
 from spacetrack.data.layout import BOX, CONF
 from spacetrack.tracking.camera_motion import CameraMotion
+from spacetrack.tracking.class_vote import ClassVotes
 from spacetrack.tracking.detection import Detections
 from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.io import FEATURES, iter_frames
@@ -118,11 +119,14 @@ class DeepSort:
         *,
         dynamic: np.ndarray | None = None,
         image: np.ndarray | None = None,
+        classes: np.ndarray | None = None,
     ) -> np.ndarray:
         """Track one frame of detections (boxes `tlwh` (N, 4) pixels, confidences (N,), features (N, D)).
 
         dynamic: (N,) bool, whether a motion blob matched each box (the evidence of `dynamics`; None: all).
         image: the frame (RGB or grey uint8), for `camera_motion`; None applies no shift.
+        classes: (N,) the detector's class index of each box, for each track's class vote (`class_votes`);
+            None: unknown.
         Returns the frame's output tracks as rows (track id, x, y, w, h), box `tlwh` of the track state.
         """
         tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
@@ -131,6 +135,8 @@ class DeepSort:
             feature = np.asarray(feature, dtype=float)
         if dynamic is not None:
             dynamic = np.asarray(dynamic, dtype=bool).reshape(-1)
+        if classes is not None:
+            classes = np.asarray(classes).astype(int).reshape(-1)
 
         def chosen(keep: np.ndarray) -> Detections:
             return Detections.create(
@@ -138,6 +144,7 @@ class DeepSort:
                 confidence[keep],
                 None if feature is None else feature[keep],
                 None if dynamic is None else dynamic[keep],
+                None if classes is None else classes[keep],
             )
 
         keep = self._kept(tlwh, confidence, self.min_confidence)
@@ -168,6 +175,16 @@ class DeepSort:
             nms_max_overlap=self.nms_max_overlap,
             min_detection_height=self.min_detection_height,
         )
+
+    @property
+    def class_votes(self) -> ClassVotes:
+        """Each track's class, voted over its matched detections (every track of the sequence so far)."""
+        return self.tracker.votes
+
+    def output_classes(self) -> np.ndarray:
+        """(T, 2) int rows aligned with the last `step`'s output: the class of the detection each track
+        matched on that frame (-1 when it coasted) and the track's voted class so far."""
+        return self.tracker.output_classes()
 
     def matched_tracks(self) -> np.ndarray:
         """Rows (track id, x, y, w, h) of every track matched to a detection this frame, output or not."""

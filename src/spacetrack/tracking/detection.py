@@ -30,13 +30,15 @@ class Detections:
     tlwh: (N, 4) boxes in pixels; confidence: (N,); feature: (N, D) appearance vectors (None: D = 0),
     L2-normalised here so that the cosine distance is 1 - dot product (D may be 0 when no appearance is used);
     dynamic: (N,) bool, whether a motion blob of the frame matched the box (None: all True), the evidence
-    of the track-level dynamic decision (`tracking.dynamic`).
+    of the track-level dynamic decision (`tracking.dynamic`); classes: (N,) the detector's class index of
+    each box (None: all -1, unknown), what a track's class vote (`Tracker.track_classes`) counts.
     """
 
     tlwh: np.ndarray
     confidence: np.ndarray
     feature: np.ndarray
     dynamic: np.ndarray
+    classes: np.ndarray
 
     @classmethod
     def create(
@@ -45,6 +47,7 @@ class Detections:
         confidence: np.ndarray,
         feature: np.ndarray | None = None,
         dynamic: np.ndarray | None = None,
+        classes: np.ndarray | None = None,
     ) -> Detections:
         tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
         confidence = np.asarray(confidence, dtype=float).reshape(-1)
@@ -55,7 +58,8 @@ class Detections:
             norm = np.linalg.norm(feature, axis=1, keepdims=True)
             feature = feature / np.where(norm > 0, norm, 1.0)
         dynamic = np.ones(len(tlwh), bool) if dynamic is None else np.asarray(dynamic, dtype=bool).reshape(-1)
-        return cls(tlwh, confidence, feature, dynamic)
+        classes = np.full(len(tlwh), -1) if classes is None else np.asarray(classes).astype(int).reshape(-1)
+        return cls(tlwh, confidence, feature, dynamic, classes)
 
     def __len__(self) -> int:
         return len(self.tlwh)
@@ -63,7 +67,13 @@ class Detections:
     def subset(self, index: np.ndarray) -> Detections:
         """The detections at positions `index`, in that order."""
         index = np.asarray(index, dtype=int)
-        return Detections(self.tlwh[index], self.confidence[index], self.feature[index], self.dynamic[index])
+        return Detections(
+            self.tlwh[index],
+            self.confidence[index],
+            self.feature[index],
+            self.dynamic[index],
+            self.classes[index],
+        )
 
     def to_xyah(self) -> np.ndarray:
         return tlwh_to_xyah(self.tlwh)

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from spacetrack.tracking.camera_motion import CameraMotion
+from spacetrack.tracking.class_vote import UNKNOWN, ClassVotes
 from spacetrack.tracking.deepsort import track_rows
 from spacetrack.tracking.dynamic import MotionEvidence, TrackDynamics
 from spacetrack.tracking.tracker import OUTPUT_BOXES
@@ -123,6 +124,8 @@ class PeerTracker:
         self.evidence: dict[int, MotionEvidence] = {}
         self._static = np.zeros((0, 5))
         self._matched = np.zeros((0, 5))
+        self.votes = ClassVotes()
+        self._output_classes = np.zeros((0, 2), dtype=int)
         self._frame = 0
 
     @property
@@ -138,12 +141,14 @@ class PeerTracker:
         *,
         dynamic: np.ndarray | None = None,
         image: np.ndarray | None = None,
+        classes: np.ndarray | None = None,
     ) -> np.ndarray:
         """Track one frame: boxes `tlwh` (N, 4) pixels, confidences (N,) in [0, 1], re-ID features (N, D).
 
         dynamic: (N,) bool, whether a motion blob matched each box (the evidence of `dynamics`).
         image: the frame, (H, W, 3) RGB or (H, W) grey uint8; the peers that compensate camera motion
             need it.
+        classes: (N,) the detector's class index of each box, for each track's class vote (None: unknown).
         Returns the frame's output tracks as rows (track id, x, y, w, h), box `tlwh`; ids start at 1.
         """
         from boxmot.structures import Boxes, Detections
@@ -172,12 +177,42 @@ class PeerTracker:
             boxes[source >= 0] = tlwh[source[source >= 0]]
         rows = track_rows(list(zip(ids, boxes, strict=True)))
         self._matched = rows[source >= 0]
-        if self.dynamics is None:
-            return rows
-        size = None if image is None else (image.shape[1], image.shape[0])
-        moving = self._observe(ids, source, tlwh, dynamic, size)
-        self._static = rows[~moving]
+        frame_classes = self._vote(ids, source, confidence, classes)
+        moving = np.ones(len(rows), bool)
+        if self.dynamics is not None:
+            size = None if image is None else (image.shape[1], image.shape[0])
+            moving = self._observe(ids, source, tlwh, dynamic, size)
+            self._static = rows[~moving]
+        self._output_classes = frame_classes[moving]
         return rows[moving]
+
+    @property
+    def class_votes(self) -> ClassVotes:
+        """Each track's class, voted over its matched detections (every track of the sequence so far)."""
+        return self.votes
+
+    def output_classes(self) -> np.ndarray:
+        """(T, 2) int rows aligned with the last `step`'s output: the class of the detection each track
+        matched on that frame (-1 when it had none) and the track's voted class so far."""
+        return self._output_classes
+
+    def _vote(
+        self, ids: np.ndarray, source: np.ndarray, confidence: np.ndarray, classes: np.ndarray | None
+    ) -> np.ndarray:
+        """Count this frame's matched detections in their tracks' class votes; (T, 2) `output_classes` rows."""
+        confidence = np.asarray(confidence, dtype=float).reshape(-1)
+        named = np.full(len(confidence), UNKNOWN) if classes is None else np.asarray(classes).astype(int)
+        own = (
+            np.where(source >= 0, named[np.maximum(source, 0)], UNKNOWN)
+            if len(named)
+            else np.full(len(ids), UNKNOWN)
+        )
+        for track_id, d, k in zip(ids, source, own, strict=True):
+            if d >= 0:
+                self.votes.add(int(track_id), int(k), confidence[d])
+        return np.array(
+            [(k, self.votes.winner(int(i))[0]) for i, k in zip(ids, own, strict=True)], dtype=int
+        ).reshape(-1, 2)
 
     def static_tracks(self) -> np.ndarray:
         """Rows (track id, x, y, w, h) of this frame's tracks `dynamics` holds static (kept, not output)."""

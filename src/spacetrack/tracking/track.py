@@ -45,6 +45,7 @@ class Track:
         self.features: list[np.ndarray] = [] if feature is None else [feature]
         self.evidence: MotionEvidence | None = None
         self.detection_tlwh: np.ndarray | None = None  # the box `tlwh` of its last matched detection
+        self.detection_class = -1  # that detection's class index (-1: unknown)
         self.whole_area: float | None = None  # its box's area when last seen whole (`Tracker.occluded_area`)
         self._n_init = n_init
         self._max_age = max_age

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from spacetrack.tracking.class_vote import UNKNOWN, ClassVotes
 from spacetrack.tracking.detection import Detections, xyah_to_tlwh
 from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.iou_matching import iou_matrix
@@ -92,6 +93,8 @@ class Tracker:
         self.dynamics = dynamics
         self.kf = KalmanFilter()
         self.tracks: list[Track] = []
+        self.votes = ClassVotes()  # each track's class, voted over its matched detections
+        self._shown: list[Track] = []  # the tracks of the last `outputs()`, in its order
         self._next_id = 1
         self._camera_moving = False
         self._frame_size: tuple[int, int] | None = None
@@ -182,18 +185,29 @@ class Tracker:
         The box is the filtered state, not the detection (the reference DeepSORT's output rule). With
         `dynamics`, only the tracks it found dynamic.
         """
-        return self._listed(dynamic=True)
+        listed, self._shown = self._listed(dynamic=True)
+        return listed
+
+    def output_classes(self) -> np.ndarray:
+        """(T, 2) int rows for the tracks of the last `outputs()`, in its order: the class of the
+        detection each matched on that frame (UNKNOWN when it coasted) and the track's voted class."""
+        rows = [
+            (t.detection_class if t.time_since_update == 0 else UNKNOWN, self.votes.winner(t.track_id)[0])
+            for t in self._shown
+        ]
+        return np.array(rows, dtype=int).reshape(-1, 2)
 
     def static_outputs(self) -> list[tuple[int, np.ndarray]]:
         """Like `outputs`, the confirmed tracks that `dynamics` holds static (none without it)."""
-        return self._listed(dynamic=False) if self.dynamics is not None else []
+        return self._listed(dynamic=False)[0] if self.dynamics is not None else []
 
     def matched(self) -> list[tuple[int, np.ndarray]]:
         """(track id, box `tlwh` of its detection) of every track matched this frame, tentative, static
         and output alike: what offline backfill (`tracking.offline`) gives back to the tracks output later."""
         return [(t.track_id, t.detection_tlwh) for t in self.tracks if t.time_since_update == 0]
 
-    def _listed(self, *, dynamic: bool) -> list[tuple[int, np.ndarray]]:
+    def _listed(self, *, dynamic: bool) -> tuple[list[tuple[int, np.ndarray]], list[Track]]:
+        """(track id, box) of the confirmed tracks shown this frame, and those tracks."""
         shown = [
             t
             for t in self.tracks
@@ -206,11 +220,16 @@ class Tracker:
             for i, t in enumerate(shown):
                 if t.time_since_update == 0:
                     boxes[i] = t.detection_tlwh
-        listed = zip([t.track_id for t in shown], boxes, strict=True)
         if self.coast_in_view and self._frame_size is not None:
-            coasting = {t.track_id for t in shown if t.time_since_update == 1}
-            return [(k, box) for k, box in listed if k not in coasting or _inside(box, self._frame_size)]
-        return list(listed)
+            kept = [
+                t.time_since_update != 1 or _inside(box, self._frame_size)
+                for t, box in zip(shown, boxes, strict=True)
+            ]
+            shown, boxes = (
+                [t for t, k in zip(shown, kept, strict=True) if k],
+                boxes[np.array(kept, dtype=bool)],
+            )
+        return [(t.track_id, box) for t, box in zip(shown, boxes, strict=True)], shown
 
     def _hold_occluded(
         self,
@@ -231,8 +250,10 @@ class Tracker:
                 track.whole_area = float(area)
 
     def _observe(self, track: Track, detections: Detections, d: int, offset: tuple[float, float]) -> None:
-        """Note the detection `d` matched to `track`: its box, and the track's motion evidence."""
+        """Note the detection `d` matched to `track`: its box, its class vote and the track's motion evidence."""
         track.detection_tlwh = detections.tlwh[d]
+        track.detection_class = int(detections.classes[d])
+        self.votes.add(track.track_id, track.detection_class, detections.confidence[d])
         if self.dynamics is None:
             return
         if track.evidence is None:

@@ -74,7 +74,7 @@ def draw_boxes(
         x1, y1 = round(x), round(y)
         x2, y2 = round(x + w) - 1, round(y + h) - 1
         cv2.rectangle(out, (x1, y1), (x2, y2), box_color, thickness)
-        words = [str(labels[i])] if labels is not None else []
+        words = [str(labels[i])] if labels is not None and str(labels[i]) else []
         words += [str(ids[i])] if ids is not None else []
         if words:
             text = " ".join(words)
