@@ -208,6 +208,8 @@ def _without_unused(settings: dict) -> dict:
         del settings["detector"]["score"]  # a detection's score was always objectness x class before
     if settings["detector"].get("agnostic_nms") is False:
         del settings["detector"]["agnostic_nms"]  # and NMS per class
+    if "part_overlap" in settings["detector"] and settings["detector"]["part_overlap"] is None:
+        del settings["detector"]["part_overlap"]  # with no part suppression
     before_options = (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None),
                       ("coast_in_view", False), ("occluded_area", None), ("low_confidence", None))  # fmt: skip
     for key, before in before_options:

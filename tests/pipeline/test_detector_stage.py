@@ -64,3 +64,18 @@ def test_agnostic_nms_reaches_the_detector_and_names_itself(tmp_path):
     assert 0 < len(kept_agnostic) < len(kept_per_class)  # boxes of other classes now suppress each other
     assert len(np.unique(kept_agnostic[:, 5])) > 1  # each box keeps its own name
     assert "nms=" not in per_class.identity and "nms=agnostic" in agnostic.identity
+
+
+def test_part_overlap_drops_every_box_mostly_inside_a_higher_scored_one(tmp_path):
+    rgb, whole, parted = detector_pair(tmp_path, 3, iou_threshold=0.45, part_overlap=0.8)
+    kept, before = parted(rgb, 1), whole(rgb, 1)
+    assert 0 < len(kept) < len(before)
+    assert (np.diff(kept[:, 4]) <= 0).all()  # still best score first
+    x1, y1, w, h = kept[:, :4].T
+    iw = np.minimum(x1[:, None] + w[:, None], (x1 + w)[None]) - np.maximum(x1[:, None], x1[None]) + 1
+    ih = np.minimum(y1[:, None] + h[:, None], (y1 + h)[None]) - np.maximum(y1[:, None], y1[None]) + 1
+    inside = np.clip(iw, 0, None) * np.clip(ih, 0, None) / ((w + 1) * (h + 1))[None, :]
+    assert not np.triu(inside > 0.8, k=1).any()  # no box lies 80 % inside one scored above it
+    assert "part_overlap=0.8" in parted.identity and "part_overlap" not in whole.identity
+    with pytest.raises(ValueError, match="detector.part_overlap must lie in \\(0, 1\\] or be null, got 1.5"):
+        YoloDetector(weights=whole.weights, part_overlap=1.5)

@@ -25,6 +25,7 @@ from spacetrack.models.yolo import YOLOv5, fuse_for_inference
 from spacetrack.onnx_backend import DETECTOR_BACKENDS, MethodModule, OrtSession, check_backend, onnx_session
 from spacetrack.pipeline.sources import FrameSource
 from spacetrack.quantize import Calibration, quantized_onnx, training_frames
+from spacetrack.tracking.preprocessing import non_max_suppression
 
 ONNX_BACKENDS = ("onnxruntime", "onnxruntime_int8")
 # Channels-last memory layout for the torch backend on the CPU: oneDNN's convolutions then skip the
@@ -90,6 +91,10 @@ class YoloDetector:
     agnostic_nms: NMS over every class at once: a target the network names two ways (a rocket body seen
         end-on is a disc, like debris) keeps one box instead of two, which the tracker, following every
         class alike, would take for two targets. False: per class (YOLOv5's, how the mAP is measured).
+    part_overlap: after NMS, a box lying at least this share inside a higher-scored box of any class is
+        taken for a part of that object (a lit panel of a dim satellite, boxed on its own) and dropped:
+        DeepSORT's own NMS rule (intersection over the lower-scored box's area), which IoU NMS misses
+        when the part is small. None: none.
     score: what a detection's score is, the number the tracker's `min_confidence` compares: "class"
         (objectness times the best class probability, YOLOv5's, the default) or "objectness" (objectness
         alone: whether there is a target, however the model splits it between the classes, which the
@@ -122,6 +127,7 @@ class YoloDetector:
         max_det: int = 100,
         score: str = "class",
         agnostic_nms: bool = False,
+        part_overlap: float | None = None,
         device: str = "auto",
         backend: str = "torch",
         threads: int = 0,
@@ -149,6 +155,9 @@ class YoloDetector:
         self.image_size, self.conf_threshold = image_size, conf_threshold
         self.iou_threshold, self.max_det, self.score = iou_threshold, max_det, score
         self.agnostic_nms = bool(agnostic_nms)
+        if part_overlap is not None and not 0.0 < part_overlap <= 1.0:
+            raise ValueError(f"detector.part_overlap must lie in (0, 1] or be null, got {part_overlap}")
+        self.part_overlap = part_overlap
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
             f"iou={iou_threshold} backend={self.backend}"
@@ -157,6 +166,8 @@ class YoloDetector:
             self.identity += f" score={score}"
         if self.agnostic_nms:
             self.identity += " nms=agnostic"
+        if part_overlap is not None:
+            self.identity += f" part_overlap={part_overlap}"
         if self.backend == "onnxruntime_int8":
             self.identity += f" calibration={self.calibration}"
 
@@ -216,7 +227,10 @@ class YoloDetector:
             score=self.score,
             agnostic=self.agnostic_nms,
         )
-        return np.column_stack([det[:, :2], det[:, 2:4] - det[:, :2], det[:, 4:6]])
+        boxes = np.column_stack([det[:, :2], det[:, 2:4] - det[:, :2], det[:, 4:6]])
+        if self.part_overlap is not None:
+            boxes = boxes[np.sort(non_max_suppression(boxes[:, :4], boxes[:, 4], self.part_overlap))]
+        return boxes
 
 
 class GroundTruthDetector:
