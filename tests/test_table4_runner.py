@@ -212,3 +212,18 @@ def test_the_paper_rows_run_the_reference_matching_and_the_track_rows_reacquire(
     track = table4.piece_overrides("gt_deepsort_original", 0, [])
     assert "tracker.reacquire_gate=null" in paper  # the reference matching
     assert table4.settings_hash(track) != table4.settings_hash(track + ["tracker.reacquire_gate=null"])
+
+
+def test_the_paper_rows_keep_yolov5s_nms_and_drop_low_scored_boxes_while_make_track_has_them():
+    from spacetrack.config import compose_config
+
+    default = compose_config("track", [])
+    assert default.detector.agnostic_nms and default.detector.part_overlap == 0.8
+    assert default.tracker.low_confidence == 0.3  # the deepsort_paper preset
+    for row in ("gam_deepsort_paper", "yolo_deepsort_paper", "yolo_deepsort_original"):
+        cfg = compose_config("track", table4.piece_overrides(row, 0, []))
+        assert not cfg.detector.agnostic_nms and cfg.detector.part_overlap is None, row
+        assert cfg.tracker.low_confidence is None, row
+    # ground-truth boxes all score 1.0: no low-scored box exists, so the setting does not change the hash
+    gt = table4.piece_overrides("gt_deepsort_paper", 0, [])
+    assert table4.settings_hash(gt) == table4.settings_hash(gt + ["tracker.low_confidence=null"])

@@ -50,8 +50,10 @@ from spacetrack.pipeline.weights import MissingWeightsError
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 GT = ["detector=ground_truth"]
-YOLO = ["detector=yolo", "detector_run.gam_position=none", "enhance=none"]
-GAM = ["detector=yolo", "detector_run.gam_position=after_sppf", "enhance=dwt_hsv"]
+# YOLOv5's own NMS (per class, no part suppression), as the paper's detector has it
+PER_CLASS_NMS = ["detector.agnostic_nms=false", "detector.part_overlap=null"]
+YOLO = ["detector=yolo", "detector_run.gam_position=none", "enhance=none"] + PER_CLASS_NMS
+GAM = ["detector=yolo", "detector_run.gam_position=after_sppf", "enhance=dwt_hsv"] + PER_CLASS_NMS
 # The paper's pipeline: the per-frame filter, no camera motion in the tracker.
 PAPER = ["tracker.camera_motion=false", "tracker.output_box=state"]
 # DeepSORT's two matching stages (no re-acquisition), its output rule and its Kalman update
@@ -215,6 +217,10 @@ def _without_unused(settings: dict) -> dict:
     for key, before in before_options:
         if key in settings["tracker"] and settings["tracker"][key] == before:
             del settings["tracker"][key]
+    # boxes that all score at least min_confidence (ground truth's) leave no low-scored one to match
+    score = settings["detector"].get("score")  # a number for ground truth, a kind of score for a network
+    if isinstance(score, int | float) and score >= settings["tracker"].get("min_confidence", 1.0):
+        settings["tracker"].pop("low_confidence", None)
     return settings
 
 

@@ -259,9 +259,13 @@ def test_a_low_scored_duplicate_of_a_kept_box_is_not_a_second_target(guard, monk
     assert second.time_since_update == (1 if guard else 0)  # with the guard it coasts on its prediction
 
 
-@pytest.mark.parametrize("value", [-0.1, 0.5, 0.7])
-def test_low_confidence_outside_zero_to_min_confidence_is_refused(value):
-    with pytest.raises(
-        ValueError, match=rf"tracker.low_confidence must lie in \[0, min_confidence = 0.5\).*{value}"
-    ):
-        DeepSort(**{**ORIGINAL, "min_confidence": 0.5, "low_confidence": value})
+def test_a_negative_low_confidence_is_refused_and_one_at_min_confidence_or_above_changes_nothing():
+    with pytest.raises(ValueError, match="tracker.low_confidence must be >= 0 or null, got -0.1"):
+        DeepSort(**{**ORIGINAL, "min_confidence": 0.5, "low_confidence": -0.1})
+
+    def plain(outputs):
+        return [{k: box.tolist() for k, box in o.items()} for o in outputs]
+
+    reference = plain(run_scored(_faded_target()))
+    for value in (0.5, 0.7):  # no detection scores from it up to min_confidence 0.5
+        assert plain(run_scored(_faded_target(), low_confidence=value)) == reference

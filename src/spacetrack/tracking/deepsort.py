@@ -52,8 +52,9 @@ class DeepSort:
     low_confidence: beyond the reference, detections scoring from this up to `min_confidence` are kept
         aside (not when a kept detection overlaps them at IoU `LOW_DUPLICATE_IOU` or more: the same object
         named twice) and serve only to keep confirmed tracks that every other stage left unmatched, by box
-        overlap (ByteTrack's second association, see `Tracker`); they never start a track. None: dropped,
-        as the reference does.
+        overlap (ByteTrack's second association, see `Tracker`); they never start a track. At or above
+        `min_confidence` no detection is in that range (so a sweep of `min_confidence` may cross it).
+        None: dropped, as the reference does.
     """
 
     def __init__(
@@ -77,11 +78,8 @@ class DeepSort:
         occluded_area: float | None = None,
         low_confidence: float | None = None,
     ) -> None:
-        if low_confidence is not None and not 0.0 <= low_confidence < min_confidence:
-            raise ValueError(
-                f"tracker.low_confidence must lie in [0, min_confidence = {min_confidence}) or be null, "
-                f"got {low_confidence}"
-            )
+        if low_confidence is not None and not low_confidence >= 0.0:
+            raise ValueError(f"tracker.low_confidence must be >= 0 or null, got {low_confidence}")
         metric = None
         if max_cosine_distance is not None:
             metric = NearestNeighborDistanceMetric(
