@@ -39,8 +39,8 @@ from spacetrack.viz.video import VideoWriter
 class SequenceResult:
     """rows: (N, 6) `frame, id, x, y, w, h` tracker output (tlwh pixels); timings: ms per frame by stage;
     classes: (N, 2) per row the class of the detection its track matched on that frame (-1: none) and the
-    track's final voted class (None when offline post-processing changed the rows); track_classes:
-    {track id: (voted class, its share of the track's summed score)}."""
+    track's final voted class (None when offline post-processing changed the rows); classes_path: the
+    file with each track's voted class (`write_track_classes`)."""
 
     name: str
     rows: np.ndarray
@@ -51,7 +51,6 @@ class SequenceResult:
     mot_path: Path | None = None
     video_path: Path | None = None
     classes: np.ndarray | None = None
-    track_classes: dict[int, tuple[int, float]] = field(default_factory=dict)
     classes_path: Path | None = None
 
 
@@ -216,7 +215,6 @@ def run_source(
         mot_path=mot_path,
         video_path=video_path if video_path is not None and video_path.is_file() else None,
         classes=frame_classes,
-        track_classes=track_classes,
         classes_path=output.classes_path(source.name),
     )
 
@@ -224,13 +222,9 @@ def run_source(
 def write_track_classes(path: Path, track_classes: dict[int, tuple[int, float]]) -> None:
     """Write each track's voted class as JSON: `{"tracks": {"<id>": {"class": k, "name": ..., "share": s}}}`,
     the share being the class's part of the summed scores of the track's matched detections; `name` from
-    the project's classes (`spacetrack.data.geometry.CLASS_NAMES`), null for an index outside them."""
+    `class_name`."""
     tracks = {
-        str(k): {
-            "class": c,
-            "name": CLASS_NAMES[c] if 0 <= c < len(CLASS_NAMES) else None,
-            "share": round(share, 4),
-        }
+        str(k): {"class": c, "name": class_name(c), "share": round(share, 4)}
         for k, (c, share) in sorted(track_classes.items())
     }
     atomic_write_text(path, json.dumps({"tracks": tracks}, indent=1) + "\n")
@@ -319,9 +313,15 @@ def _track(
         )
 
 
+def class_name(index: int) -> str | None:
+    """The project's name of class `index` (`spacetrack.data.geometry.CLASS_NAMES`); None for UNKNOWN or an
+    index outside them."""
+    return CLASS_NAMES[index] if 0 <= index < len(CLASS_NAMES) else None
+
+
 def class_labels(classes: np.ndarray) -> list[str]:
-    """The project's class name of each index (empty for UNKNOWN or an index outside them)."""
-    return [CLASS_NAMES[k] if 0 <= k < len(CLASS_NAMES) else "" for k in np.asarray(classes, dtype=int)]
+    """`class_name` of each index, empty where there is none (a label for the clip)."""
+    return [class_name(int(k)) or "" for k in np.asarray(classes, dtype=int)]
 
 
 def _update_cache(

@@ -31,7 +31,7 @@ class Detections:
     L2-normalised here so that the cosine distance is 1 - dot product (D may be 0 when no appearance is used);
     dynamic: (N,) bool, whether a motion blob of the frame matched the box (None: all True), the evidence
     of the track-level dynamic decision (`tracking.dynamic`); classes: (N,) the detector's class index of
-    each box (None: all -1, unknown), what a track's class vote (`Tracker.track_classes`) counts.
+    each box (None: all -1, unknown), what a track's class vote (`Tracker.votes`) counts.
     """
 
     tlwh: np.ndarray

@@ -139,7 +139,7 @@ class Tracker:
         if low is not None and len(low):
             confirmed = [k for k in unmatched_tracks if self.tracks[k].is_confirmed()]
             low_matches, _, _ = min_cost_matching(
-                lambda t, d: 1.0 - iou_matrix(self._boxes([self.tracks[k] for k in t]), low.tlwh[d]),
+                lambda t, d: self._iou_cost(low, t, d, recent_only=False),
                 self.max_iou_distance,
                 confirmed,
                 list(range(len(low))),
@@ -308,11 +308,15 @@ class Tracker:
         cost[admissible] = self.lambda_ * mahalanobis[admissible] + (1.0 - self.lambda_) * cosine[admissible]
         return cost
 
-    def _iou_cost(self, detections: Detections, track_idx: list[int], det_idx: list[int]) -> np.ndarray:
-        """1 - IoU between track states and detections; tracks unseen for over a frame never match."""
+    def _iou_cost(
+        self, detections: Detections, track_idx: list[int], det_idx: list[int], *, recent_only: bool = True
+    ) -> np.ndarray:
+        """1 - IoU between track states and detections; with `recent_only`, tracks unseen for over a frame
+        never match."""
         tracks = [self.tracks[i] for i in track_idx]
         cost = 1.0 - iou_matrix(self._boxes(tracks), detections.tlwh[det_idx])
-        cost[np.array([t.time_since_update > 1 for t in tracks])] = INFTY_COST
+        if recent_only:
+            cost[np.array([t.time_since_update > 1 for t in tracks])] = INFTY_COST
         return cost
 
     def _position_cost(self, detections: Detections, track_idx: list[int], det_idx: list[int]) -> np.ndarray:
