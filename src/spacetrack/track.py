@@ -152,8 +152,12 @@ def _sequence_metrics(
         return metrics
     gt = read_mot(gt_path)
     pairs[result.name] = (gt[gt[:, 0] <= result.num_frames], rows_as_mot(result.rows))
+    matching: dict = {}
     scores = evaluate(
-        {result.name: pairs[result.name]}, iou_threshold=cfg.iou_threshold, min_visibility=cfg.min_visibility
+        {result.name: pairs[result.name]},
+        iou_threshold=cfg.iou_threshold,
+        min_visibility=cfg.min_visibility,
+        accumulators=matching,
     )[result.name]
     metrics |= {k: scores[k] for k in SCORES}
     if result.classes is not None:  # not after offline post-processing, whose boxes no detection named
@@ -162,6 +166,7 @@ def _sequence_metrics(
             result.classes,
             iou_threshold=cfg.iou_threshold,
             min_visibility=cfg.min_visibility,
+            matching=matching[result.name],
         )
         metrics |= class_accuracy(named[result.name])
     return metrics

@@ -179,6 +179,9 @@ def test_class_accuracy_of_matched_boxes_by_track_vote_and_by_frame():
     classes = np.array([[1, 1], [2, 1], [-1, 1], [1, 1], [2, 2], [0, 2]])
     named = named_matches(gt, hyp, classes)
     assert sorted(named.tolist()) == [[0, 2, 2], [1, -1, 1], [1, 1, 1], [1, 1, 1], [1, 2, 1]]
+    matching = {}
+    evaluate({"s": (gt, hyp)}, accumulators=matching)  # the evaluator's own matching, not made again
+    assert sorted(named_matches(gt, hyp, classes, matching=matching["s"]).tolist()) == sorted(named.tolist())
     scores = class_accuracy(named)
     assert scores["class_accuracy"] == pytest.approx(4 / 5)  # track 6 is named debris: wrong
     assert scores["class_accuracy_frame"] == pytest.approx(2 / 4)  # the coasting box has no name of its own

@@ -154,10 +154,13 @@ def evaluate(
     *,
     iou_threshold: float = 0.5,
     min_visibility: float = 0.0,
+    accumulators: dict[str, mm.MOTAccumulator] | None = None,
 ) -> dict[str, dict[str, float]]:
     """`summarize` of {name: (gt, hyp)} MOT arrays plus HOTA, DetA, AssA and LocA (`hota`, fractions);
-    see `scored_rows` for which rows count."""
-    accs, data = {}, {}
+    see `scored_rows` for which rows count. Each sequence's matching is added to `accumulators` when
+    given (for `named_matches`, which then need not match again)."""
+    accs = {} if accumulators is None else accumulators
+    data = {}
     for name, (gt, hyp) in sequences.items():
         accs[name] = accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
         gt_keep, hyp_keep = scored_rows(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
@@ -175,12 +178,16 @@ def named_matches(
     *,
     iou_threshold: float = 0.5,
     min_visibility: float = 0.0,
+    matching: mm.MOTAccumulator | None = None,
 ) -> np.ndarray:
     """(M, 3) int rows, one per result box matched to a target by `accumulate`: the target's class
     (`gt` column CLASS), and the two names of `hyp_classes` (N, k >= 1 columns aligned with `hyp`'s rows,
-    e.g. the class of the frame's own detection and the track's voted class; -1: unnamed)."""
+    e.g. the class of the frame's own detection and the track's voted class; -1: unnamed). `matching`:
+    the accumulator `evaluate` already made of this (gt, hyp) pair, matched again when absent."""
     hyp_classes = np.asarray(hyp_classes, dtype=int).reshape(len(hyp), -1)
-    events = accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility).mot_events
+    if matching is None:
+        matching = accumulate(gt, hyp, iou_threshold=iou_threshold, min_visibility=min_visibility)
+    events = matching.mot_events
     matched = events[events["Type"] == "MATCH"]
     gt_class = {(int(f), int(k)): int(c) for f, k, c in gt[:, [0, 1, CLASS]]}
     hyp_row = {(int(f), int(k)): i for i, (f, k) in enumerate(hyp[:, :2])}
