@@ -178,3 +178,24 @@ def test_the_cache_key_tells_int8_from_float_and_its_calibration(weights, tmp_pa
     assert quantised not in (ort, key("detector.backend=torch"))
     assert key("detector.backend=onnxruntime_int8", "+detector.calibration_frames=32") != quantised
     assert METADATA_KEY.startswith("spacetrack")
+
+
+def test_test_time_augmentation_runs_the_same_views_on_torch_and_onnx_runtime(weights, tmp_path):
+    rgb = np.random.default_rng(5).integers(0, 255, (160, 192, 3), dtype=np.uint8)
+    common = {"weights": weights, "conf_threshold": 0.0, "device": "cpu", "max_det": 10_000}
+    plain = YoloDetector(**common, backend="torch")
+    torch_tta = YoloDetector(**common, backend="torch", tta=True)
+    onnx_tta = YoloDetector(**common, backend="onnxruntime", tta=True, threads=1, onnx_dir=tmp_path / "onnx")
+    one, three = plain.predict(rgb)[0], torch_tta.predict(rgb)[0]
+    # 160x192 at 0.83 is 128x160 (the nearest multiples of 32), at 0.67 96x128: anchors of all three views
+    sizes = ((160, 192), (128, 160), (96, 128))
+    per_view = [sum(3 * (h // s) * (w // s) for s in (8, 16, 32)) for h, w in sizes]
+    assert len(one) == per_view[0] and len(three) == sum(per_view)
+    torch.testing.assert_close(three[: len(one)], one)  # the first view is the frame as it is
+    from_onnx = onnx_tta.predict(rgb)[0]
+    assert from_onnx.shape == three.shape and (from_onnx - three).abs().max() < 1e-3
+    assert sorted(p.name.split("-")[0] for p in (tmp_path / "onnx").glob("*.onnx")) == [
+        "yolo128x160", "yolo160x192", "yolo96x128"]  # fmt: skip
+    assert " tta" in torch_tta.identity and "tta" not in plain.identity
+    boxes = onnx_tta(rgb, 1)
+    assert boxes.shape[1] == 6 and (boxes[:, 0] + boxes[:, 2] <= 192 + 1e-4).all()

@@ -115,6 +115,10 @@ def test_table_lists_each_fold_and_the_means_per_scenario():
     scored_multi["confusion"] = {"classes": ["a", "b"], "counts": [[5, 1, 2], [3, 4, 0], [1, 0, 0]]}
     also = piece("yolov5s", 5, 0.8, 0.5) | {"confusion": {"classes": ["a", "b"], "counts": [[1] * 3] * 3}}
     text = study.table([piece("yolov5s", 3, 0.9, 0.7), scored_multi, scored_any_class, also])
+    assert "test-time augmentation" not in text
+    views = [[1.0, False], [0.83, True]]
+    augmented = study.table([piece("yolov5s", 3, 0.9, 0.7) | {"tta": views}])
+    assert "detected with test-time augmentation (scale, mirrored: 1.0 as is, 0.83 mirrored)" in augmented
     # scored before the any-class and multi-label metrics
     assert "| YOLOv5s | 3 | 0.900 | 0.450 | 0.900 | - | - | 300 |" in text
     assert "| +DWT/HSV +GAM | 3 | 0.950 | 0.475 | 0.900 | 0.970 / 0.960 | - | 300 |" in text
@@ -135,13 +139,20 @@ def test_rescoring_takes_the_pieces_own_run_or_leaves_the_piece_alone(train_conf
     cfg = study.variant_config("yolov5s", 3, overrides, tmp_path)
     run_id = finished_run(cfg, weights, 0.4)
     scored = []
-    monkeypatch.setattr(
-        study, "score", lambda cfg, w, stride: scored.append(w.read_bytes()) or {"all": {"x": 1}}
-    )
+
+    def score(cfg, w, stride, augment=False):
+        scored.append((w.read_bytes(), augment))
+        return {"all": {"x": 2 if augment else 1}}
+
+    monkeypatch.setattr(study, "score", score)
     old = {"slug": "yolov5s", "fold": 3, "overrides": overrides, "run_id": run_id, "all": {"x": 0}, "dim": {}}
-    assert study.rescored(old, 2, tmp_path) == {**old, "all": {"x": 1}} and scored == [b"weights"]
+    assert study.rescored(old, 2, tmp_path) == {**old, "all": {"x": 1}} and scored == [(b"weights", False)]
     elsewhere = {**old, "run_id": "f" * 32}  # trained on another machine: its run is not in this store
     assert study.rescored(elsewhere, 2, tmp_path) is None and len(scored) == 1
+    # --tta: the same weights with test-time augmentation, the views recorded in the piece
+    augmented = study.rescored(old, 2, tmp_path, augment=True)
+    assert augmented["all"] == {"x": 2} and scored[-1] == (b"weights", True)
+    assert augmented["tta"] == [[1.0, False], [0.83, True], [0.67, False]]
 
 
 def test_start_only_scores_the_weights_a_training_would_start_from(train_config, tmp_path, monkeypatch):
@@ -151,7 +162,9 @@ def test_start_only_scores_the_weights_a_training_would_start_from(train_config,
                  f"data_root={tmp_path / 'data'}", f"weights={start}"]  # fmt: skip
     scored = []
     monkeypatch.setattr(
-        study, "score", lambda cfg, w, stride: scored.append(w.read_bytes()) or {"all": {"x": 1}}
+        study,
+        "score",
+        lambda cfg, w, stride, augment=False: scored.append(w.read_bytes()) or {"all": {"x": 1}},
     )
     monkeypatch.setattr(study, "fit", lambda cfg: pytest.fail("--start-only trained"))
     (tmp_path / "configs").mkdir()  # main() makes it

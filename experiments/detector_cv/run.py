@@ -18,7 +18,11 @@ from every piece present, so a killed run loses at most the training it was in, 
 
 With `--start-only` nothing is trained: each fold is scored with the weights its training would start
 from (`weights`: the shipped pretrained file of the variant's model, or a path), what fine-tuning adds
-to.
+to. With `--tta` nothing is trained either: each piece already in `<out>/results/` is scored again from
+its MLflow run with test-time augmentation (the frame also at 0.83 of its size mirrored and at 0.67, one
+NMS over all: YOLOv5's views, `detector.tta` in the pipeline), into `<out>/tta/`.
+
+    python experiments/detector_cv/run.py --tta --folds 4 5 6 7 8 --variants yolov5s --out experiments/detector_cv/psf_truth
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, collate, image_source
 from spacetrack.engine.checkpoint import load_detector
+from spacetrack.engine.inference import TTA_VIEWS
 from spacetrack.engine.metrics import CONFUSION_IOU, CONFUSION_MIN_SCORE, detection_metrics
 from spacetrack.engine.pretrained import resolve_weights
 from spacetrack.engine.validate import evaluate
@@ -99,17 +104,17 @@ def validation_sets(cfg, frame_stride: int) -> tuple[list[str], dict[str, YoloDa
     return classes, sets
 
 
-def score(cfg, weights: Path, frame_stride: int) -> dict:
+def score(cfg, weights: Path, frame_stride: int, augment: bool = False) -> dict:
     """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario, and the
     confusion matrix over all of them (`evaluate`'s: row true class, column predicted, plus background and
-    missed)."""
+    missed); with `augment`, detected with test-time augmentation."""
     model = load_detector(weights)
     classes, sets = validation_sets(cfg, frame_stride)
     out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, []
     for group, data in sets.items():
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
         _, details = evaluate(model, loader, device=model.stride.device, **NMS, class_agnostic=True,
-                              multi_label=True)  # fmt: skip
+                              multi_label=True, augment=augment)  # fmt: skip
         for kind in KINDS:
             pooled[kind].append(details[kind])
         out[group] = summary(details) | {"frames": len(data)}
@@ -211,19 +216,21 @@ def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Pa
     return {"run_id": run_id, "best_epoch": best.get("epoch"), **score(cfg, weights, frame_stride)}
 
 
-def rescored(result: dict, frame_stride: int, out: Path) -> dict | None:
-    """`result` (a piece) scored again from the weights of its own MLflow run, or None where this store
-    does not hold that run (trained on another machine)."""
+def rescored(result: dict, frame_stride: int, out: Path, augment: bool = False) -> dict | None:
+    """`result` (a piece) scored again from the weights of its own MLflow run (with `augment`, with
+    test-time augmentation), or None where this store does not hold that run (trained on another
+    machine)."""
     cfg = variant_config(result["slug"], result["fold"], result["overrides"], out)
+    extra = {"tta": [list(view) for view in TTA_VIEWS]} if augment else {}
     if result.get("start_only"):
         start = start_weights(cfg)
         if file_hash(start) != result["start_hash"]:
             return None
-        return {**result, **score(cfg, start, frame_stride)}
+        return {**result, **extra, **score(cfg, start, frame_stride, augment=augment)}
     found = matching_run(cfg)
     if found is None or found[0] != result["run_id"]:
         return None
-    return {**result, **score(cfg, found[2], frame_stride)}
+    return {**result, **extra, **score(cfg, found[2], frame_stride, augment=augment)}
 
 
 def write_tables(out: Path) -> None:
@@ -276,6 +283,9 @@ def table(results: list[dict]) -> str:
     overrides = sorted({" ".join(r["overrides"]) or "(none)" for r in results})
     start_only = all(r.get("start_only") for r in results)
     scored = "the start's weights, not fine-tuned" if start_only else "each fold's best epoch"
+    if all(r.get("tta") for r in results):
+        scored += ", detected with test-time augmentation (scale, mirrored: " + ", ".join(
+            f"{scale} {'mirrored' if mirrored else 'as is'}" for scale, mirrored in results[0]["tta"]) + ")"
     return (
         f"Overrides `{'`, `'.join(overrides)}`; {scored}, native 640x480 frames.\n\n"
         + "\n".join(lines)
@@ -328,6 +338,12 @@ def main() -> None:
         help="train nothing: score each fold with the weights its training would start from",
     )
     parser.add_argument(
+        "--tta",
+        action="store_true",
+        help="train nothing: score each piece already in <out>/results again with test-time augmentation "
+        "(YOLOv5's views), into <out>/tta/",
+    )
+    parser.add_argument(
         "overrides", nargs="*", help="Hydra overrides of the train config for every run (after --)"
     )
     args = parser.parse_args()
@@ -335,12 +351,22 @@ def main() -> None:
     unknown = sorted(set(slugs) - set(VARIANTS))
     if unknown:
         parser.error(f"unknown variants {unknown} (known: {', '.join(VARIANTS)})")
-    for folder in (args.out / "results", args.out / "configs"):
+    dest = args.out / "tta" if args.tta else args.out
+    for folder in (dest / "results", args.out / "configs"):
         folder.mkdir(parents=True, exist_ok=True)
     for fold in args.folds:
         for slug in slugs:
-            path = args.out / "results" / f"{slug}_fold{fold}.json"
-            if path.is_file():
+            path = dest / "results" / f"{slug}_fold{fold}.json"
+            if args.tta:
+                if path.is_file() and not args.rescore:
+                    continue
+                plain = args.out / "results" / path.name
+                result = rescored(json.loads(plain.read_text()), args.frame_stride, args.out, augment=True) \
+                    if plain.is_file() else None  # fmt: skip
+                if result is None:
+                    print(f"{plain}: not trained, or its MLflow run is not in this store; not scored")
+                    continue
+            elif path.is_file():
                 if not args.rescore:
                     continue
                 result = rescored(json.loads(path.read_text()), args.frame_stride, args.out)
@@ -353,7 +379,7 @@ def main() -> None:
                           **piece(slug, fold, args.overrides, args.frame_stride, args.out,
                                   args.start_only)}  # fmt: skip
             atomic_write_text(path, json.dumps(result, indent=2) + "\n")
-            write_tables(args.out)
+            write_tables(dest)
             print(
                 f"{path}: mAP@0.5 {result['all']['map50']:.3f}, recall {result['all']['recall_at_score']:.3f}"
             )

@@ -72,3 +72,27 @@ def test_a_box_whose_second_class_is_right_counts_only_in_the_multi_label_matche
     assert classes.tolist() == [1.0, 2.0, 0.0] and truth.tolist() == [2.0]  # 0.72, 0.54, 0.09: all > 0.001
     assert tp[:, 0].tolist() == [False, True, False] and scores[1] == pytest.approx(0.54)
     assert detection_metrics(*details["matches_multi"])["map50"] == pytest.approx(1.0)
+
+
+def test_augmented_validation_adds_the_other_views_to_the_plain_one(tiny_dataset, monkeypatch):
+    import spacetrack.engine.validate as validate
+
+    calls = []
+    real = validate.augmented_predictions
+
+    def spy(predict, x, views):
+        calls.append(list(views))
+        return real(predict, x, views)
+
+    monkeypatch.setattr(validate, "augmented_predictions", spy)
+    torch.manual_seed(0)
+    model = tiny_model().eval()
+    data = YoloDataset(root=tiny_dataset, sequences=["seq_000_nominal"], num_classes=3)
+    loader = DataLoader(data, batch_size=2, collate_fn=collate)
+    kwargs = {"device": torch.device("cpu"), "conf_threshold": 0.001, "iou_threshold": 0.6, "max_det": 300}
+    plain = evaluate(model, loader, **kwargs)[1]["matches"]
+    assert calls == []
+    augmented = evaluate(model, loader, **kwargs, augment=True)[1]["matches"]
+    assert calls == [[(0.83, True), (0.67, False)]] * 2  # one call a batch; the plain view is not run twice
+    assert len(augmented[3]) == len(plain[3])  # the same targets
+    assert not np.array_equal(augmented[1], plain[1])  # scored on more boxes than the plain view's

@@ -2,14 +2,17 @@
 
 A frame reaches the network at its native resolution, padded on the right and bottom to a multiple of 32
 (`image_size=None`; 640x480 needs no padding), or letterboxed to a square of `image_size` pixels.
+With test-time augmentation (`augmented_predictions`) the network also sees the input smaller and
+mirrored, and every view's boxes go to one NMS.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from spacetrack.data.yolo_dataset import letterbox, pad_to_stride
 from spacetrack.engine.nms import non_max_suppression
@@ -28,6 +31,42 @@ def network_input(frame: np.ndarray, image_size: int | None) -> tuple[np.ndarray
     if image_size is None:
         return pad_to_stride(frame), 1.0, (0, 0)
     return letterbox(frame, image_size)
+
+
+# Test-time augmentation, YOLOv5's views: (scale, mirrored left-right) -- the input as it is, at 0.83 of
+# its size mirrored, at 0.67 of its size. Each scaled size is rounded to a multiple of the largest stride.
+TTA_VIEWS: tuple[tuple[float, bool], ...] = ((1.0, False), (0.83, True), (0.67, False))
+STRIDE = 32
+
+
+def augmented_predictions(
+    predict: Callable[[torch.Tensor], torch.Tensor],
+    x: torch.Tensor,
+    views: Sequence[tuple[float, bool]] = TTA_VIEWS,
+) -> torch.Tensor:
+    """Decoded predictions (B, N1 + N2 + ..., 5 + classes) of `predict` (float images (B, 3, H, W) in
+    [0, 1] -> decoded (B, N, 5 + classes), boxes as centre x, y, width, height in its input's pixels) over
+    each (scale, mirrored) view of `x` (H and W multiples of 32): the view resized bilinearly to the
+    multiple of 32 nearest `scale` times each side, mirrored left-right where asked, and its boxes mapped
+    back to `x`'s pixels, so that one NMS takes the views' boxes together."""
+    height, width = x.shape[2:]
+    out = []
+    for scale, mirrored in views:
+        if scale <= 0:
+            raise ValueError(f"a test-time augmentation scale must be positive, got {scale}")
+        size = tuple(max(STRIDE, round(side * scale / STRIDE) * STRIDE) for side in (height, width))
+        view = (
+            x
+            if size == (height, width)
+            else F.interpolate(x, size=size, mode="bilinear", align_corners=False)
+        )
+        pred = predict(torch.flip(view, dims=[3]) if mirrored else view).clone()
+        if mirrored:
+            pred[..., 0] = size[1] - pred[..., 0]
+        pred[..., [0, 2]] *= width / size[1]
+        pred[..., [1, 3]] *= height / size[0]
+        out.append(pred)
+    return torch.cat(out, dim=1)
 
 
 def to_frame_boxes(det: np.ndarray, scale: float, pad: tuple[int, int], shape: Sequence[int]) -> np.ndarray:
@@ -76,16 +115,19 @@ def detect(
     conf_threshold: float = 0.25,
     iou_threshold: float = 0.45,
     max_det: int = 300,
+    augment: bool = False,
 ) -> list[np.ndarray]:
     """Per RGB uint8 (H, W, 3) frame an (n, 6) float array `x1, y1, x2, y2, score, class` (xyxy pixels
     of that frame, clipped to it; boxes with no area left out), best score first. `model` is a `YOLOv5`
-    in eval mode (or anything with its `predict`); frames of one call share a size.
+    in eval mode (or anything with its `predict`); frames of one call share a size. `augment`: with
+    test-time augmentation (`TTA_VIEWS`).
     """
     prepared = [network_input(frame, image_size) for frame in frames]
     device = next(iter(model.parameters()), torch.zeros(())).device
     x = torch.from_numpy(np.stack([p[0] for p in prepared])).to(device).permute(0, 3, 1, 2).float() / 255
+    predictions = augmented_predictions(model.predict, x) if augment else model.predict(x)
     return frame_detections(
-        model.predict(x).float(),
+        predictions.float(),
         prepared,
         [frame.shape for frame in frames],
         conf_threshold=conf_threshold,

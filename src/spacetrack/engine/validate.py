@@ -9,6 +9,7 @@ import torch
 from torch import nn
 
 from spacetrack.engine.boxes import xywh_to_xyxy
+from spacetrack.engine.inference import TTA_VIEWS, augmented_predictions
 from spacetrack.engine.metrics import confusion_matrix, detection_metrics, match_detections
 from spacetrack.engine.nms import non_max_suppression
 
@@ -25,6 +26,7 @@ def evaluate(
     loss_fn: Callable | None = None,
     class_agnostic: bool = False,
     multi_label: bool = False,
+    augment: bool = False,
 ) -> tuple[dict[str, float], dict[str, object]]:
     """(metrics, details) of `model` on `loader` (see `yolo_dataset.collate` for the batch format).
 
@@ -39,6 +41,8 @@ def evaluate(
     classes); with `multi_label`, also `matches_multi`, the same as `matches` from detections of every
     class an anchor scores above `conf_threshold` (see `non_max_suppression`: YOLOv5's way to measure mAP).
     The metrics themselves always come from one detection per box, the class of its best score.
+    `augment`: detect with test-time augmentation (`inference.TTA_VIEWS`; the losses stay the plain
+    input's).
     """
     model.eval()
     tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
@@ -54,6 +58,9 @@ def evaluate(
         if loss_fn is not None:
             losses += loss_fn([p.float() for p in raw], targets.to(device))[1].cpu() * len(x)
         decoded = model.detect.decode(raw)
+        if augment:  # the plain view is decoded above; add the others
+            others = [view for view in TTA_VIEWS if view != (1.0, False)]
+            decoded = torch.cat([decoded, augmented_predictions(model.predict, x, others)], dim=1)
         nms = {"conf_threshold": conf_threshold, "iou_threshold": iou_threshold, "max_det": max_det}
         detections = non_max_suppression(decoded, **nms)
         every_class = non_max_suppression(decoded, **nms, multi_label=True) if multi_label else []

@@ -17,7 +17,12 @@ from torch import nn
 from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, read_mot
 from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
-from spacetrack.engine.inference import check_image_size, frame_detections, network_input
+from spacetrack.engine.inference import (
+    augmented_predictions,
+    check_image_size,
+    frame_detections,
+    network_input,
+)
 from spacetrack.engine.nms import check_score
 from spacetrack.engine.precision import native_bfloat16
 from spacetrack.io import file_hash
@@ -99,6 +104,9 @@ class YoloDetector:
         (objectness times the best class probability, YOLOv5's, the default) or "objectness" (objectness
         alone: whether there is a target, however the model splits it between the classes, which the
         tracker does not tell apart).
+    tta: test-time augmentation: the network also sees each frame at 0.83 of its size mirrored and at
+        0.67 of its size (YOLOv5's views, `inference.TTA_VIEWS`), and every view's boxes go to one NMS:
+        three passes a frame instead of one, for more of the dim and glaring targets. Any backend.
     device: "auto" (CUDA when present), "cpu" or "cuda".
     backend: how the network runs; letterbox and NMS are the same for all.
         "torch": a copy with Conv+BN fused, under `inference_mode`, channels-last on the CPU.
@@ -128,6 +136,7 @@ class YoloDetector:
         score: str = "class",
         agnostic_nms: bool = False,
         part_overlap: float | None = None,
+        tta: bool = False,
         device: str = "auto",
         backend: str = "torch",
         threads: int = 0,
@@ -158,6 +167,7 @@ class YoloDetector:
         if part_overlap is not None and not 0.0 < part_overlap <= 1.0:
             raise ValueError(f"detector.part_overlap must lie in (0, 1] or be null, got {part_overlap}")
         self.part_overlap = part_overlap
+        self.tta = bool(tta)
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
             f"iou={iou_threshold} backend={self.backend}"
@@ -168,6 +178,8 @@ class YoloDetector:
             self.identity += " nms=agnostic"
         if part_overlap is not None:
             self.identity += f" part_overlap={part_overlap}"
+        if self.tta:
+            self.identity += " tta"
         if self.backend == "onnxruntime_int8":
             self.identity += f" calibration={self.calibration}"
 
@@ -204,11 +216,16 @@ class YoloDetector:
 
     @torch.inference_mode()
     def predict(self, boxed: np.ndarray) -> torch.Tensor:
-        """Decoded predictions (1, N, 5 + classes) float32 of one network-input RGB uint8 image."""
-        if self.backend in ONNX_BACKENDS:
-            x = boxed.transpose(2, 0, 1)[None].astype(np.float32) / np.float32(255)
-            return torch.from_numpy(self.session(*boxed.shape[:2])(x)[0])
+        """Decoded predictions (1, N, 5 + classes) float32 of one network-input RGB uint8 image (with
+        `tta`, of each of its views, together)."""
         x = torch.from_numpy(boxed).to(self.device).permute(2, 0, 1)[None].float().div_(255)
+        return augmented_predictions(self._predict, x) if self.tta else self._predict(x)
+
+    def _predict(self, x: torch.Tensor) -> torch.Tensor:
+        """Decoded predictions of a float (1, 3, H, W) input in [0, 1], by the backend."""
+        if self.backend in ONNX_BACKENDS:
+            x = x.cpu().numpy()
+            return torch.from_numpy(self.session(*x.shape[2:])(np.ascontiguousarray(x))[0])
         if self._channels_last:
             x = x.contiguous(memory_format=torch.channels_last)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.backend == "torch_bf16"):
