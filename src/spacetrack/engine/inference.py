@@ -44,7 +44,7 @@ def augmented_predictions(
     x: torch.Tensor,
     views: Sequence[tuple[float, bool]] = TTA_VIEWS,
 ) -> torch.Tensor:
-    """Decoded predictions (B, N1 + N2 + ..., 5 + classes) of `predict` (float images (B, 3, H, W) in
+    """Decoded predictions (B, N1 + N2 + ..., 5 + classes) float32 of `predict` (float images (B, 3, H, W) in
     [0, 1] -> decoded (B, N, 5 + classes), boxes as centre x, y, width, height in its input's pixels) over
     each (scale, mirrored) view of `x` (H and W multiples of 32): the view resized bilinearly to the
     multiple of 32 nearest `scale` times each side, mirrored left-right where asked, and its boxes mapped
@@ -60,7 +60,8 @@ def augmented_predictions(
             if size == (height, width)
             else F.interpolate(x, size=size, mode="bilinear", align_corners=False)
         )
-        pred = predict(torch.flip(view, dims=[3]) if mirrored else view).clone()
+        # a float32 copy: mapped in place without touching the model's own output (or a bfloat16 one)
+        pred = predict(torch.flip(view, dims=[3]) if mirrored else view).to(torch.float32, copy=True)
         if mirrored:
             pred[..., 0] = size[1] - pred[..., 0]
         pred[..., [0, 2]] *= width / size[1]
