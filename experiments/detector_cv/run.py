@@ -357,21 +357,15 @@ def main() -> None:
     for fold in args.folds:
         for slug in slugs:
             path = dest / "results" / f"{slug}_fold{fold}.json"
-            if args.tta:
-                if path.is_file() and not args.rescore:
-                    continue
-                plain = args.out / "results" / path.name
-                result = rescored(json.loads(plain.read_text()), args.frame_stride, args.out, augment=True) \
-                    if plain.is_file() else None  # fmt: skip
+            trained = args.out / "results" / path.name  # the piece scored again (itself without --tta)
+            if path.is_file() and not args.rescore:
+                continue
+            if args.tta or path.is_file():
+                result = rescored(json.loads(trained.read_text()), args.frame_stride, args.out,
+                                  augment=args.tta) if trained.is_file() else None  # fmt: skip
                 if result is None:
-                    print(f"{plain}: not trained, or its MLflow run is not in this store; not scored")
-                    continue
-            elif path.is_file():
-                if not args.rescore:
-                    continue
-                result = rescored(json.loads(path.read_text()), args.frame_stride, args.out)
-                if result is None:
-                    print(f"{path}: its MLflow run (or start file) is not in this store; left as it is")
+                    print(f"{trained}: not trained here, or its MLflow run (or start file) is not in this "
+                          "store; not scored")  # fmt: skip
                     continue
             else:
                 result = {"slug": slug, "variant": VARIANTS[slug][0], "fold": fold,

@@ -17,11 +17,15 @@ import torch.nn.functional as F
 from spacetrack.data.yolo_dataset import letterbox, pad_to_stride
 from spacetrack.engine.nms import non_max_suppression
 
+STRIDE = 32  # the network's largest stride: an input side must be a multiple of it
+
 
 def check_image_size(image_size: int | None) -> None:
     """A letterbox size must be a multiple of the network's largest stride (None: native frames)."""
-    if image_size is not None and image_size % 32:
-        raise ValueError(f"image_size must be a multiple of 32 pixels (or null: native), got {image_size}")
+    if image_size is not None and image_size % STRIDE:
+        raise ValueError(
+            f"image_size must be a multiple of {STRIDE} pixels (or null: native), got {image_size}"
+        )
 
 
 def network_input(frame: np.ndarray, image_size: int | None) -> tuple[np.ndarray, float, tuple[int, int]]:
@@ -36,7 +40,6 @@ def network_input(frame: np.ndarray, image_size: int | None) -> tuple[np.ndarray
 # Test-time augmentation, YOLOv5's views: (scale, mirrored left-right) -- the input as it is, at 0.83 of
 # its size mirrored, at 0.67 of its size. Each scaled size is rounded to a multiple of the largest stride.
 TTA_VIEWS: tuple[tuple[float, bool], ...] = ((1.0, False), (0.83, True), (0.67, False))
-STRIDE = 32
 
 
 def augmented_predictions(

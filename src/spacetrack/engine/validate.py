@@ -52,6 +52,7 @@ def evaluate(
     losses = torch.zeros(3)
     examples: dict[str, object] = {}
     num_images = 0
+    other_views = [view for view in TTA_VIEWS if view != (1.0, False)]
     for images, targets in loader:
         x = images.to(device).float() / 255
         raw = model(x)
@@ -59,8 +60,7 @@ def evaluate(
             losses += loss_fn([p.float() for p in raw], targets.to(device))[1].cpu() * len(x)
         decoded = model.detect.decode(raw)
         if augment:  # the plain view is decoded above; add the others
-            others = [view for view in TTA_VIEWS if view != (1.0, False)]
-            decoded = torch.cat([decoded, augmented_predictions(model.predict, x, others)], dim=1)
+            decoded = torch.cat([decoded, augmented_predictions(model.predict, x, other_views)], dim=1)
         nms = {"conf_threshold": conf_threshold, "iou_threshold": iou_threshold, "max_det": max_det}
         detections = non_max_suppression(decoded, **nms)
         every_class = non_max_suppression(decoded, **nms, multi_label=True) if multi_label else []
