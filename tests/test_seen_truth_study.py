@@ -249,3 +249,60 @@ def test_a_labelled_setting_or_another_labelling_is_tracked_into_files_of_its_ow
     piece = tmp_path / "wider" / "on_relabelled" / "tracking" / "yolo_deepsort_paper_fold3.json"
     assert json.loads(piece.read_text())["metrics"]["mota"] == 0.65
     assert not (tracking / "yolo_deepsort_paper_fold3.json").exists()
+
+
+def tracking_piece(folder: Path, name: str, row: str, fold: int, mota: float, extra=None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    m = {"mota": mota, "hota": mota - 0.1, "idf1": mota + 0.05, "idsw": 1.0, "fp": 2.0, "fn": 3.0}
+    piece = {"row": row, "fold": fold, "metrics": m, **({"extra": extra} if extra else {})}
+    (folder / f"{name}_fold{fold}.json").write_text(json.dumps(piece))
+
+
+def test_the_study_table_sets_each_tracked_name_beside_ground_truth_boxes_on_its_own_folds(
+    tmp_path, monkeypatch
+):
+    driver = study_driver(tmp_path, monkeypatch, study, fold=2)
+    own = tmp_path / "wider" / "on_relabelled" / "tracking"
+    ref = tmp_path / "earlier" / "on_relabelled" / "tracking"
+    for fold, mota in ((2, 0.8), (4, 0.9), (5, 0.7)):
+        tracking_piece(ref, "gt_deepsort_paper", "gt_deepsort_paper", fold, mota + 0.05)
+    tracking_piece(own, "yolo_deepsort_paper", "yolo_deepsort_paper", 2, 0.5)
+    for fold, mota in ((2, 0.6), (4, 0.8), (7, 0.8)):
+        low = ["tracker.low_confidence=0.1"]
+        tracking_piece(own, "yolo_deepsort_paper_low", "yolo_deepsort_paper", fold, mota, low)
+    (own / "gates_fold2.json").write_text(json.dumps({"gates": {}}))  # not a row: left out
+    argv = ["track.py", "--study", "wider", "--data", "relabelled", "--table"]
+    monkeypatch.setattr("sys.argv", argv + ["--reference", "nowhere"])
+    with pytest.raises(SystemExit, match="--reference nowhere: .* is not a study folder"):
+        driver.main()
+    monkeypatch.setattr("sys.argv", argv + ["--reference", "earlier"])
+    driver.main()
+    table = (tmp_path / "wider" / "on_relabelled" / "tracking.md").read_text()
+    lines = [line for line in table.splitlines() if line.startswith("|")]
+    assert (
+        lines[0] == "| tracked as | 2 | 4 | 5 | 7 | folds | mean | below gt | HOTA | IDF1 | IDSW / FP / FN |"
+    )
+    assert lines[1].count("|---") == lines[0].count("|") - 1 == 11
+    # ground truth first (from the reference study), then the names in order; the gap is taken on a
+    # name's own folds and left empty where the ground truth lacks one of them (fold 7)
+    assert (
+        lines[2] == "| `gt_deepsort_paper` | 85.0 | 95.0 | 75.0 | - | 3 | 85.0 |  | 75.0 | 90.0 | 3 / 6 / 9 |"
+    )
+    assert (
+        lines[3] == "| `yolo_deepsort_paper` | 50.0 | - | - | - | 1 | 50.0 | 35.0 | 40.0 | 55.0 | 1 / 2 / 3 |"
+    )
+    assert lines[4].startswith("| `yolo_deepsort_paper_low` | 60.0 | 80.0 | - | 80.0 | 3 | 73.3 |  |")
+    assert "- `low`: `tracker.low_confidence=0.1`" in table
+    assert "gates" not in table
+    # nothing tracked, or a piece that is not one: a clear error, no table
+    monkeypatch.setattr("sys.argv", ["track.py", "--study", "earlier", "--table"])
+    with pytest.raises(SystemExit, match="no tracking pieces to tabulate"):
+        driver.main()
+    (ref / "gt_deepsort_paper_fold9.json").write_text("{}")
+    monkeypatch.setattr("sys.argv", ["track.py", "--study", "earlier", "--data", "relabelled", "--table"])
+    with pytest.raises(SystemExit, match="gt_deepsort_paper_fold9.json: not a tracking piece"):
+        driver.main()
+    assert not (tmp_path / "earlier" / "on_relabelled" / "tracking.md").exists()
+    monkeypatch.setattr("sys.argv", ["track.py", "--study", "wider"])
+    with pytest.raises(SystemExit, match="--folds: give the folds"):
+        driver.main()

@@ -22,11 +22,19 @@ images labelled another way, as `score_on.py` scores detectors on it), into `<st
 With `--set LABEL OVERRIDE...` each row is tracked with those overrides after its own (a setting beyond
 Table 4's, such as `detector.score=objectness`), into `<study>/tracking/<row>_<LABEL>_fold<k>.json`.
 
+With `--table` nothing is tracked: the pieces already in `<study>/tracking/` (or `on_<NAME>/tracking/`)
+become `tracking.md` beside that folder, one line per tracked name (a row and its `--set` label): MOTA per
+fold, and over that name's folds the mean MOTA, HOTA and IDF1, the summed errors, and how far it lies below
+the ground-truth boxes (`gt_deepsort_paper`) on those same folds. `--reference STUDY` takes the
+ground-truth pieces from another study tracked on the same data where this one has none.
+
     python experiments/detector_cv/track_study.py --study seen_pretraining --folds 2 3
     python experiments/detector_cv/track_study.py --study wider_pretraining --folds 3 --rows gam_deepsort_paper
     python experiments/detector_cv/track_study.py --study wider_pretraining --folds 2 --gates
     python experiments/detector_cv/track_study.py --study wider_pretraining --folds 3 --rows gam_deepsort_paper \
         --set objectness detector.score=objectness
+    python experiments/detector_cv/track_study.py --study psf_truth --data space_default_psf --table \
+        --reference finetune_lr
 """
 
 from __future__ import annotations
@@ -78,7 +86,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--study", required=True, help="a folder of experiments/detector_cv")
-    parser.add_argument("--folds", type=int, nargs="+", required=True)
+    parser.add_argument("--folds", type=int, nargs="+", help="required unless --table")
     parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on detector boxes")
     parser.add_argument("--detectors", type=Path, help="default: outputs/detector_cv/<study>")
     parser.add_argument("--gates", action="store_true", help="the paper's settings, one key back at a time")
@@ -90,7 +98,20 @@ def main() -> None:
         help="track and score on this dataset of the same sequences (labelled another way) instead of the "
         "seen truth's; results go to <study>/on_<data>/tracking/",
     )
+    parser.add_argument("--table", action="store_true", help="write tracking.md from the pieces present")
+    parser.add_argument("--reference", help="with --table: a study whose ground-truth pieces to compare with")
     args = parser.parse_args()
+    folder = HERE / args.study
+    if not folder.is_dir():
+        raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
+    if args.table:
+        reference = HERE / args.reference if args.reference else None
+        if reference is not None and not reference.is_dir():
+            raise SystemExit(f"--reference {args.reference}: {reference} is not a study folder")
+        print(write_table(folder, args.data, reference))
+        return
+    if not args.folds:
+        raise SystemExit("--folds: give the folds to track (or --table to tabulate what is tracked)")
     label, extra = (args.set[0], tuple(args.set[1:])) if args.set else ("", ())
     if args.set and (not re.fullmatch(r"[a-z0-9_]+", label) or not extra or not all("=" in e for e in extra)):
         raise SystemExit(
@@ -100,9 +121,6 @@ def main() -> None:
         raise SystemExit(
             "--gates tracks the seen truth's dataset with the paper's settings only: no --set or --data"
         )
-    folder = HERE / args.study
-    if not folder.is_dir():
-        raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
     rows = ["yolo_deepsort_paper"] if args.gates else args.rows
     for row in rows:
         if row.split("_")[0] not in (*DETECTORS, "gt"):
@@ -158,6 +176,93 @@ def track_gates(study, name: str, fold: int, weights: Path, out: Path) -> None:
         print(f"fold {fold} paper settings, {label}: MOTA {result['metrics']['mota']:.3f}", flush=True)
     piece = {"row": "yolo_deepsort_paper", "fold": fold, "weights": str(weights), "gates": rows}
     atomic_write_text(out / f"gates_fold{fold}.json", json.dumps(piece, indent=1) + "\n")
+
+
+GT_ROW = "gt_deepsort_paper"
+
+
+def _pieces(folder: Path) -> dict[str, dict[int, dict]]:
+    """Tracked name -> fold -> piece, for every `<name>_fold<k>.json` in `folder` (gates pieces aside)."""
+    found: dict[str, dict[int, dict]] = {}
+    for path in sorted(folder.glob("*_fold*.json")):
+        match = re.fullmatch(r"(.+)_fold(\d+)\.json", path.name)
+        if match is None or match[1] == "gates":
+            continue
+        try:
+            piece = json.loads(path.read_text())
+            piece["metrics"]["mota"]
+        except (ValueError, KeyError, TypeError) as err:
+            raise SystemExit(f"{path}: not a tracking piece ({err!r})") from err
+        found.setdefault(match[1], {})[int(match[2])] = piece
+    return found
+
+
+def write_table(folder: Path, data: str | None = None, reference: Path | None = None) -> Path:
+    """`tracking.md` beside `<folder>[/on_<data>]/tracking/`: each tracked name's MOTA per fold and, over its
+    folds, mean MOTA / HOTA / IDF1, summed IDSW / FP / FN and the gap to ground-truth boxes on those folds."""
+    sub = Path(f"on_{data}") if data else Path()
+    tracking = folder / sub / "tracking"
+    names = _pieces(tracking) if tracking.is_dir() else {}
+    if not names:
+        raise SystemExit(f"{tracking}: no tracking pieces to tabulate: track some folds first")
+    gt, gt_from = names.get(GT_ROW), tracking
+    if gt is None and reference is not None:
+        gt_from = reference / sub / "tracking"
+        gt = _pieces(gt_from).get(GT_ROW) if gt_from.is_dir() else None
+        if gt:
+            names = {GT_ROW: gt, **names}
+    folds = sorted({f for by_fold in names.values() for f in by_fold})
+
+    def mean(values) -> float:
+        values = list(values)
+        return sum(values) / len(values)
+
+    def pct(value) -> str:
+        return f"{100 * value:.1f}"
+
+    lines = [
+        f"MOTA (%) per fold of each tracked name in `{(folder.name / sub / 'tracking').as_posix()}/` "
+        "(a Table 4 row, then its `--set` label); over the folds it has: the mean, how far below "
+        f"ground-truth boxes (`{GT_ROW}`"
+        + (f", from `{gt_from.relative_to(HERE).as_posix()}/`" if gt and gt_from != tracking else "")
+        + ") it lies on those same folds, HOTA and IDF1 (%), and the summed errors. Written by "
+        "`track_study.py --table` from the pieces present.",
+        "",
+        "| tracked as | " + " | ".join(str(f) for f in folds) + " | folds | mean | below gt | HOTA | IDF1 | "
+        "IDSW / FP / FN |",
+        "|---" * (len(folds) + 7) + "|",
+    ]
+    for name in sorted(names, key=lambda n: (n != GT_ROW, n)):
+        by_fold = names[name]
+        got = [by_fold[f]["metrics"] for f in sorted(by_fold)]
+        cells = [pct(by_fold[f]["metrics"]["mota"]) if f in by_fold else "-" for f in folds]
+        gap = ""
+        if gt and name != GT_ROW and set(by_fold) <= set(gt):
+            gap = f"{100 * (mean(gt[f]['metrics']['mota'] for f in by_fold) - mean(m['mota'] for m in got)):.1f}"
+        extra = [mean(m[k] for m in got) if all(k in m for m in got) else None for k in ("hota", "idf1")]
+        errors = " / ".join(
+            str(int(sum(m[k] for m in got))) if all(k in m for m in got) else "-"
+            for k in ("idsw", "fp", "fn")
+        )
+        lines.append(
+            f"| `{name}` | "
+            + " | ".join(cells)
+            + f" | {len(got)} | {pct(mean(m['mota'] for m in got))} | {gap} | "
+            + " | ".join(pct(v) if v is not None else "-" for v in extra)
+            + f" | {errors} |"
+        )
+    settings = {
+        name[len(row) + 1 :]: piece["extra"]
+        for name, by_fold in names.items()
+        for piece in by_fold.values()
+        if piece.get("extra") and name.startswith((row := piece["row"]) + "_")
+    }
+    if settings:
+        lines += ["", "Each `--set` label's overrides, after the row's own:", ""]
+        lines += [f"- `{label}`: `{' '.join(settings[label])}`" for label in sorted(settings)]
+    out = folder / sub / "tracking.md"
+    atomic_write_text(out, "\n".join(lines) + "\n")
+    return out
 
 
 if __name__ == "__main__":
