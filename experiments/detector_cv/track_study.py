@@ -44,6 +44,7 @@ import importlib.util
 import json
 import re
 from pathlib import Path
+from statistics import fmean
 
 from omegaconf import OmegaConf
 
@@ -181,16 +182,17 @@ def track_gates(study, name: str, fold: int, weights: Path, out: Path) -> None:
 GT_ROW = "gt_deepsort_paper"
 
 
-def _pieces(folder: Path) -> dict[str, dict[int, dict]]:
-    """Tracked name -> fold -> piece, for every `<name>_fold<k>.json` in `folder` (gates pieces aside)."""
+def _pieces(folder: Path, name: str = "*") -> dict[str, dict[int, dict]]:
+    """Tracked name -> fold -> piece, for every `<name>_fold<k>.json` in `folder` (gates pieces aside;
+    `name`: that tracked name only)."""
     found: dict[str, dict[int, dict]] = {}
-    for path in sorted(folder.glob("*_fold*.json")):
+    for path in sorted(folder.glob(f"{name}_fold*.json")):
         match = re.fullmatch(r"(.+)_fold(\d+)\.json", path.name)
         if match is None or match[1] == "gates":
             continue
         try:
             piece = json.loads(path.read_text())
-            piece["metrics"]["mota"]
+            float(piece["metrics"]["mota"])
         except (ValueError, KeyError, TypeError) as err:
             raise SystemExit(f"{path}: not a tracking piece ({err!r})") from err
         found.setdefault(match[1], {})[int(match[2])] = piece
@@ -208,14 +210,10 @@ def write_table(folder: Path, data: str | None = None, reference: Path | None = 
     gt, gt_from = names.get(GT_ROW), tracking
     if gt is None and reference is not None:
         gt_from = reference / sub / "tracking"
-        gt = _pieces(gt_from).get(GT_ROW) if gt_from.is_dir() else None
+        gt = _pieces(gt_from, GT_ROW).get(GT_ROW) if gt_from.is_dir() else None
         if gt:
             names = {GT_ROW: gt, **names}
     folds = sorted({f for by_fold in names.values() for f in by_fold})
-
-    def mean(values) -> float:
-        values = list(values)
-        return sum(values) / len(values)
 
     def pct(value) -> str:
         return f"{100 * value:.1f}"
@@ -238,8 +236,8 @@ def write_table(folder: Path, data: str | None = None, reference: Path | None = 
         cells = [pct(by_fold[f]["metrics"]["mota"]) if f in by_fold else "-" for f in folds]
         gap = ""
         if gt and name != GT_ROW and set(by_fold) <= set(gt):
-            gap = f"{100 * (mean(gt[f]['metrics']['mota'] for f in by_fold) - mean(m['mota'] for m in got)):.1f}"
-        extra = [mean(m[k] for m in got) if all(k in m for m in got) else None for k in ("hota", "idf1")]
+            gap = f"{100 * (fmean(gt[f]['metrics']['mota'] for f in by_fold) - fmean(m['mota'] for m in got)):.1f}"
+        extra = [fmean(m[k] for m in got) if all(k in m for m in got) else None for k in ("hota", "idf1")]
         errors = " / ".join(
             str(int(sum(m[k] for m in got))) if all(k in m for m in got) else "-"
             for k in ("idsw", "fp", "fn")
@@ -247,7 +245,7 @@ def write_table(folder: Path, data: str | None = None, reference: Path | None = 
         lines.append(
             f"| `{name}` | "
             + " | ".join(cells)
-            + f" | {len(got)} | {pct(mean(m['mota'] for m in got))} | {gap} | "
+            + f" | {len(got)} | {pct(fmean(m['mota'] for m in got))} | {gap} | "
             + " | ".join(pct(v) if v is not None else "-" for v in extra)
             + f" | {errors} |"
         )
