@@ -1,0 +1,188 @@
+"""What a tracked name's false positives and misses are, per scenario, from its MOT results on disk.
+
+MOTA counts a false positive and a miss alike; this splits them by what lies under them, after the same
+frame-by-frame matching that scores them (`spacetrack.evaluation.mot.accumulate`, IoU >= 0.5):
+
+- a false positive is a **part** when at least `--inside` (0.8) of its area lies inside a target's box: a
+  lit panel or the bright end of a dim rocket body boxed alone; **loose** when it overlaps a target's box
+  otherwise (a target boxed too big, too small or shifted); **elsewhere** when it touches no target (a
+  star, a flare, a parked object);
+- a miss is **part-boxed** when a false positive of that frame is a part of it, **loosely boxed** when a
+  false positive overlaps it otherwise, and **unboxed** when no unmatched result touches it (the detector
+  or the tracker gave nothing there).
+
+A part and its part-boxed target are one event counted twice by MOTA. The results are those
+`track_study.py` wrote (`outputs/<study>/<data>/<name>/fold<k>/<sequence>.txt`), so a tracked name's
+folds must have been tracked on this machine; the ground truth is `data/<data>/<sequence>/gt/gt.txt`.
+The table lands in `<study>/on_<data>/errors.md` (with `errors.json`, the counts per name, fold and
+sequence).
+
+    python experiments/detector_cv/error_breakdown.py --study psf_truth --data space_default_psf \
+        --names gt_deepsort_paper gam_deepsort_paper_pipeline_low03_agnostic_part08 --reference finetune_lr
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from spacetrack.config import REPO_ROOT
+from spacetrack.data.layout import read_mot
+from spacetrack.evaluation.mot import accumulate, scored_rows
+from spacetrack.io import atomic_write_text
+
+HERE = Path(__file__).resolve().parent
+FP_KINDS = ("part", "loose", "elsewhere")
+FN_KINDS = ("part_boxed", "loosely_boxed", "unboxed")
+
+
+def _overlap(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Intersection area of one tlwh box with each of (N, 4) tlwh boxes."""
+    x1 = np.maximum(box[0], boxes[:, 0])
+    y1 = np.maximum(box[1], boxes[:, 1])
+    x2 = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2])
+    y2 = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3])
+    return np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+
+
+def _first(kinds: tuple[str, str, str], first: bool, second: bool) -> str:
+    """kinds[0] if `first`, else kinds[1] if `second`, else kinds[2]."""
+    return kinds[0] if first else kinds[1] if second else kinds[2]
+
+
+def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, inside: float = 0.8) -> Counter:
+    """Counts of each FP_KINDS / FN_KINDS kind, of `matches` and of `switches` for one sequence's MOT
+    arrays (ground truth with its visibility column, results), matched as the score matches them."""
+    if not 0.0 < inside <= 1.0:
+        raise ValueError(f"inside must lie in (0, 1], got {inside}")
+    gt_keep, hyp_keep = scored_rows(gt, hyp, iou_threshold=iou_threshold)
+    gt, hyp = gt[gt_keep], hyp[hyp_keep]
+    events = accumulate(gt, hyp, iou_threshold=iou_threshold).mot_events
+    counts = Counter({k: 0 for k in (*FP_KINDS, *FN_KINDS, "matches", "switches")})
+    counts["matches"] = int((events["Type"] == "MATCH").sum() + (events["Type"] == "SWITCH").sum())
+    counts["switches"] = int((events["Type"] == "SWITCH").sum())
+    gt_box = {(int(f), int(i)): b for f, i, b in zip(gt[:, 0], gt[:, 1], gt[:, 2:6], strict=True)}
+    hyp_box = {(int(f), int(i)): b for f, i, b in zip(hyp[:, 0], hyp[:, 1], hyp[:, 2:6], strict=True)}
+    for frame in np.unique(np.concatenate([gt[:, 0], hyp[:, 0]])).astype(int):
+        try:
+            rows = events.loc[frame]
+        except KeyError:
+            continue
+        fps = np.array([hyp_box[frame, int(h)] for h in rows.loc[rows["Type"] == "FP", "HId"]]).reshape(-1, 4)
+        misses = np.array([gt_box[frame, int(o)] for o in rows.loc[rows["Type"] == "MISS", "OId"]]).reshape(
+            -1, 4
+        )
+        targets = gt[gt[:, 0] == frame, 2:6]
+        part_of = np.zeros((len(fps), len(misses)), bool)
+        touches = np.zeros((len(fps), len(misses)), bool)
+        for i, box in enumerate(fps):
+            area = max(box[2] * box[3], 1e-9)
+            on_target = _overlap(box, targets)
+            counts[_first(FP_KINDS, (on_target >= inside * area).any(), (on_target > 0).any())] += 1
+            on_miss = _overlap(box, misses)
+            part_of[i] = on_miss >= inside * area
+            touches[i] = on_miss > 0
+        for j in range(len(misses)):
+            counts[_first(FN_KINDS, part_of[:, j].any(), touches[:, j].any())] += 1
+    return counts
+
+
+def scenario(sequence: str) -> str:
+    """`seq_007_dim` -> `dim`: the scenario a rendered sequence's name ends with."""
+    match = re.fullmatch(r"seq_\d+_(.+)", sequence)
+    return match[1] if match else sequence
+
+
+def name_counts(results: Path, data: Path, **kwargs) -> dict[int, dict[str, dict[str, int]]]:
+    """fold -> sequence -> counts, for every `fold<k>/<sequence>.txt` under one tracked name's `results`."""
+    out: dict[int, dict[str, dict[str, int]]] = {}
+    for folder in sorted(results.glob("fold*")):
+        match = re.fullmatch(r"fold(\d+)", folder.name)
+        if match is None:
+            continue
+        for path in sorted(folder.glob("seq_*.txt")):
+            gt_path = data / path.stem / "gt" / "gt.txt"
+            if not gt_path.is_file():
+                raise SystemExit(f"{path}: no ground truth for it at {gt_path}")
+            counts = breakdown(read_mot(gt_path), read_mot(path), **kwargs)
+            out.setdefault(int(match[1]), {})[path.stem] = dict(counts)
+    return out
+
+
+def write_tables(found: dict[str, dict[int, dict[str, dict[str, int]]]], out: Path, inside: float) -> Path:
+    """`errors.md` (one table per tracked name: a line per scenario and the total) and `errors.json`."""
+    head = (
+        "| scenario | sequences | matches | FP part | FP loose | FP elsewhere | miss part-boxed | "
+        "miss loosely boxed | miss unboxed | switches |"
+    )
+    lines = [
+        "False positives and misses of each tracked name, by what lies under them (written by "
+        "`error_breakdown.py`; see its docstring): a false positive at least "
+        f"{inside:g} inside a target's box is a part, one overlapping a target otherwise is loose, one "
+        "touching no target is elsewhere; a miss is part-boxed, loosely boxed or unboxed by the false "
+        "positives on it.",
+    ]
+    for name, by_fold in found.items():
+        by_scenario: dict[str, Counter] = {}
+        sequences: Counter = Counter()
+        for seqs in by_fold.values():
+            for seq, counts in seqs.items():
+                by_scenario.setdefault(scenario(seq), Counter()).update(counts)
+                sequences[scenario(seq)] += 1
+        total = sum(by_scenario.values(), Counter())
+        lines += [
+            "",
+            f"`{name}`, folds {', '.join(str(f) for f in sorted(by_fold))}:",
+            "",
+            head,
+            "|---" * 10 + "|",
+        ]
+        for label, counts in [*sorted(by_scenario.items()), ("all", total)]:
+            n = sum(sequences.values()) if label == "all" else sequences[label]
+            cells = [counts["matches"], *(counts[k] for k in (*FP_KINDS, *FN_KINDS)), counts["switches"]]
+            lines.append(f"| {label} | {n} | " + " | ".join(str(int(c)) for c in cells) + " |")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "errors.json", json.dumps(found, indent=1, sort_keys=True) + "\n")
+    atomic_write_text(out / "errors.md", "\n".join(lines) + "\n")
+    return out / "errors.md"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--study", required=True, help="a folder of experiments/detector_cv")
+    parser.add_argument("--data", required=True, help="the dataset the names were tracked and scored on")
+    parser.add_argument("--names", nargs="+", required=True, help="tracked names (a row and its --set label)")
+    parser.add_argument("--reference", help="a study whose results to take for a name this one lacks")
+    parser.add_argument("--inside", type=float, default=0.8, help="share of a part's area inside a target")
+    args = parser.parse_args()
+    folder = HERE / args.study
+    if not folder.is_dir():
+        raise SystemExit(f"--study {args.study}: {folder} is not a study folder")
+    if not 0.0 < args.inside <= 1.0:
+        raise SystemExit(f"--inside {args.inside}: must lie in (0, 1]")
+    data = REPO_ROOT / "data" / args.data
+    found = {}
+    for name in args.names:
+        studies = [args.study, *([args.reference] if args.reference else [])]
+        results = next(
+            (REPO_ROOT / "outputs" / s / args.data / name for s in studies
+             if (REPO_ROOT / "outputs" / s / args.data / name).is_dir()),
+            None,
+        )  # fmt: skip
+        if results is None:
+            raise SystemExit(f"--names {name}: no results under outputs/{{{','.join(studies)}}}/{args.data}/")
+        found[name] = name_counts(results, data, inside=args.inside)
+        if not found[name]:
+            raise SystemExit(f"{results}: no fold<k>/seq_*.txt results in it")
+    print(write_tables(found, folder / f"on_{args.data}", args.inside))
+
+
+if __name__ == "__main__":
+    main()
