@@ -35,19 +35,12 @@ from spacetrack.config import REPO_ROOT
 from spacetrack.data.layout import read_mot
 from spacetrack.evaluation.mot import accumulate, scored_rows
 from spacetrack.io import atomic_write_text
+from spacetrack.motion.dynamic import coverage
+from spacetrack.tracking.iou_matching import intersections
 
 HERE = Path(__file__).resolve().parent
 FP_KINDS = ("part", "loose", "elsewhere")
 FN_KINDS = ("part_boxed", "loosely_boxed", "unboxed")
-
-
-def _overlap(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Intersection area of one tlwh box with each of (N, 4) tlwh boxes."""
-    x1 = np.maximum(box[0], boxes[:, 0])
-    y1 = np.maximum(box[1], boxes[:, 1])
-    x2 = np.minimum(box[0] + box[2], boxes[:, 0] + boxes[:, 2])
-    y2 = np.minimum(box[1] + box[3], boxes[:, 1] + boxes[:, 3])
-    return np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
 
 
 def _first(kinds: tuple[str, str, str], first: bool, second: bool) -> str:
@@ -78,17 +71,14 @@ def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, in
             -1, 4
         )
         targets = gt[gt[:, 0] == frame, 2:6]
-        part_of = np.zeros((len(fps), len(misses)), bool)
-        touches = np.zeros((len(fps), len(misses)), bool)
-        for i, box in enumerate(fps):
-            area = max(box[2] * box[3], 1e-9)
-            on_target = _overlap(box, targets)
-            counts[_first(FP_KINDS, (on_target >= inside * area).any(), (on_target > 0).any())] += 1
-            on_miss = _overlap(box, misses)
-            part_of[i] = on_miss >= inside * area
-            touches[i] = on_miss > 0
-        for j in range(len(misses)):
-            counts[_first(FN_KINDS, part_of[:, j].any(), touches[:, j].any())] += 1
+        on_target = intersections(fps, targets)[0] > 0
+        part_of_target = coverage(fps, targets) >= inside
+        for part, touches in zip(part_of_target.any(axis=1), on_target.any(axis=1), strict=True):
+            counts[_first(FP_KINDS, part, touches)] += 1
+        on_miss = intersections(fps, misses)[0] > 0
+        part_of_miss = coverage(fps, misses) >= inside
+        for part, touches in zip(part_of_miss.any(axis=0), on_miss.any(axis=0), strict=True):
+            counts[_first(FN_KINDS, part, touches)] += 1
     return counts
 
 
