@@ -199,3 +199,50 @@ def test_test_time_augmentation_runs_the_same_views_on_torch_and_onnx_runtime(we
     assert " tta" in torch_tta.identity and "tta" not in plain.identity
     boxes = onnx_tta(rgb, 1)
     assert boxes.shape[1] == 6 and (boxes[:, 0] + boxes[:, 2] <= 192 + 1e-4).all()
+
+
+def test_test_time_augmentation_takes_its_own_views(weights):
+    rgb = np.random.default_rng(6).integers(0, 255, (160, 192, 3), dtype=np.uint8)
+    common = {
+        "weights": weights,
+        "conf_threshold": 0.0,
+        "device": "cpu",
+        "max_det": 10_000,
+        "backend": "torch",
+    }
+    plain = YoloDetector(**common)
+    enlarged = YoloDetector(**common, tta=[[1.0, False], [1.5, False]])
+    one, two = plain.predict(rgb)[0], enlarged.predict(rgb)[0]
+    # 160x192 enlarged by half is 240x288, 256x288 at multiples of 32: the frame's anchors, then the view's
+    per_view = [sum(3 * (h // s) * (w // s) for s in (8, 16, 32)) for h, w in ((160, 192), (256, 288))]
+    assert len(one) == per_view[0] and len(two) == sum(per_view)
+    torch.testing.assert_close(two[: len(one)], one)
+    # boxes of the enlarged view come back in the frame's pixels
+    assert two[len(one) :, 0].max() <= 192 * 1.2
+    assert enlarged.identity.endswith(" tta=1,1.5") and " tta" not in plain.identity
+    assert YoloDetector(**common, tta=True).identity.endswith(" tta")
+    assert YoloDetector(**common, tta=[[1.0, False], [1.5, True, 32]]).identity.endswith(" tta=1,1.5m<32")
+
+
+@pytest.mark.parametrize(
+    "tta", [[], [[0.0, False]], [[1.0, "yes"]], [1.0], "views", [[1.5, False, 0]], [[1.5, False, 32, 1]]]
+)
+def test_test_time_augmentation_refuses_bad_views(weights, tta):
+    with pytest.raises(ValueError, match="tta"):
+        YoloDetector(weights=weights, device="cpu", backend="torch", tta=tta)
+
+
+def test_a_view_with_a_max_side_keeps_only_its_small_boxes():
+    from spacetrack.engine.inference import augmented_predictions
+
+    def predict(view):
+        # two boxes in the view's pixels: 20x20 and 60x60, objectness 0.9
+        return torch.tensor([[[50.0, 50.0, 20.0, 20.0, 0.9, 1.0], [80.0, 80.0, 60.0, 60.0, 0.9, 1.0]]])
+
+    x = torch.zeros(1, 3, 64, 64)
+    plain = augmented_predictions(predict, x, [(1.0, False)])
+    enlarged = augmented_predictions(predict, x, [(1.0, False), (2.0, False, 20)])
+    torch.testing.assert_close(enlarged[:, :2], plain)
+    # the enlarged view's boxes come back at half their size (10 and 30 px): only the 10 px one is kept
+    torch.testing.assert_close(enlarged[0, 2:, 2:4], torch.tensor([[10.0, 10.0], [30.0, 30.0]]))
+    assert enlarged[0, 2:, 4].tolist() == [pytest.approx(0.9), 0.0]

@@ -42,19 +42,47 @@ def network_input(frame: np.ndarray, image_size: int | None) -> tuple[np.ndarray
 TTA_VIEWS: tuple[tuple[float, bool], ...] = ((1.0, False), (0.83, True), (0.67, False))
 
 
+def tta_views(tta) -> tuple[tuple, ...]:
+    """The views of a `tta` setting: False -> none (one plain pass), True -> `TTA_VIEWS`, a sequence of
+    `[scale, mirrored]` or `[scale, mirrored, max_side]` lists -> those views (a positive scale, a boolean
+    mirror, and where given a positive longest box side in input pixels above which the view's boxes are
+    dropped: an enlarged view kept for the small targets only)."""
+    if isinstance(tta, bool):
+        return TTA_VIEWS if tta else ()
+    problem = (
+        "tta must be true, false or a list of [scale, mirrored] or [scale, mirrored, max_side] views with a "
+        f"positive scale, a true/false mirror and a positive max_side, got {tta!r}"
+    )
+    try:
+        views = tuple(tuple(view) for view in tta)
+    except TypeError as error:
+        raise ValueError(problem) from error
+    for view in views:
+        if len(view) not in (2, 3) or not isinstance(view[1], bool):
+            raise ValueError(problem)
+        numbers = [view[0], *view[2:]]
+        if any(isinstance(n, bool) or not isinstance(n, int | float) or not n > 0 for n in numbers):
+            raise ValueError(problem)
+    if not views:
+        raise ValueError("tta: an empty list of views (false turns test-time augmentation off)")
+    return views
+
+
 def augmented_predictions(
     predict: Callable[[torch.Tensor], torch.Tensor],
     x: torch.Tensor,
-    views: Sequence[tuple[float, bool]] = TTA_VIEWS,
+    views: Sequence[tuple] = TTA_VIEWS,
 ) -> torch.Tensor:
     """Decoded predictions (B, N1 + N2 + ..., 5 + classes) float32 of `predict` (float images (B, 3, H, W) in
     [0, 1] -> decoded (B, N, 5 + classes), boxes as centre x, y, width, height in its input's pixels) over
     each (scale, mirrored) view of `x` (H and W multiples of 32): the view resized bilinearly to the
     multiple of 32 nearest `scale` times each side, mirrored left-right where asked, and its boxes mapped
-    back to `x`'s pixels, so that one NMS takes the views' boxes together."""
+    back to `x`'s pixels, so that one NMS takes the views' boxes together. A view given as (scale, mirrored,
+    max_side) keeps only its boxes whose longer side is at most max_side of `x`'s pixels (the others get
+    objectness 0)."""
     height, width = x.shape[2:]
     out = []
-    for scale, mirrored in views:
+    for scale, mirrored, *max_side in views:
         if scale <= 0:
             raise ValueError(f"a test-time augmentation scale must be positive, got {scale}")
         size = tuple(max(STRIDE, round(side * scale / STRIDE) * STRIDE) for side in (height, width))
@@ -69,6 +97,8 @@ def augmented_predictions(
             pred[..., 0] = size[1] - pred[..., 0]
         pred[..., [0, 2]] *= width / size[1]
         pred[..., [1, 3]] *= height / size[0]
+        if max_side:
+            pred[..., 4] *= pred[..., 2:4].amax(dim=-1) <= max_side[0]
         out.append(pred)
     return torch.cat(out, dim=1)
 

@@ -18,10 +18,12 @@ from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, read_mot
 from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import (
+    TTA_VIEWS,
     augmented_predictions,
     check_image_size,
     frame_detections,
     network_input,
+    tta_views,
 )
 from spacetrack.engine.nms import check_score
 from spacetrack.engine.precision import native_bfloat16
@@ -104,9 +106,13 @@ class YoloDetector:
         (objectness times the best class probability, YOLOv5's, the default) or "objectness" (objectness
         alone: whether there is a target, however the model splits it between the classes, which the
         tracker does not tell apart).
-    tta: test-time augmentation: the network also sees each frame at 0.83 of its size mirrored and at
-        0.67 of its size (YOLOv5's views, `inference.TTA_VIEWS`), and every view's boxes go to one NMS:
-        three passes a frame instead of one, for more of the dim and glaring targets. Any backend.
+    tta: test-time augmentation: True: the network also sees each frame at 0.83 of its size mirrored and
+        at 0.67 of its size (YOLOv5's views, `inference.TTA_VIEWS`), and every view's boxes go to one NMS:
+        three passes a frame instead of one, for more of the dim and glaring targets. A list of
+        `[scale, mirrored]` pairs gives the views instead (`[[1.0, false], [1.5, false]]`: the frame as
+        it is and enlarged by half); a third number in a view keeps only its boxes whose longer side is
+        at most that many input pixels (`[1.5, false, 32]`: the enlarged view for small targets only).
+        False: one pass. Any backend.
     device: "auto" (CUDA when present), "cpu" or "cuda".
     backend: how the network runs; letterbox and NMS are the same for all.
         "torch": a copy with Conv+BN fused, under `inference_mode`, channels-last on the CPU.
@@ -167,7 +173,7 @@ class YoloDetector:
         if part_overlap is not None and not 0.0 < part_overlap <= 1.0:
             raise ValueError(f"detector.part_overlap must lie in (0, 1] or be null, got {part_overlap}")
         self.part_overlap = part_overlap
-        self.tta = bool(tta)
+        self.tta = tta_views(tta)
         self.identity = (
             f"yolo {file_hash(weights)} size={image_size or 'native'} conf={conf_threshold} "
             f"iou={iou_threshold} backend={self.backend}"
@@ -178,8 +184,13 @@ class YoloDetector:
             self.identity += " nms=agnostic"
         if part_overlap is not None:
             self.identity += f" part_overlap={part_overlap}"
-        if self.tta:
+        if self.tta == TTA_VIEWS:
             self.identity += " tta"
+        elif self.tta:
+            self.identity += " tta=" + ",".join(
+                f"{scale:g}{'m' if mirrored else ''}{''.join(f'<{m:g}' for m in limit)}"
+                for scale, mirrored, *limit in self.tta
+            )
         if self.backend == "onnxruntime_int8":
             self.identity += f" calibration={self.calibration}"
 
@@ -219,7 +230,7 @@ class YoloDetector:
         """Decoded predictions (1, N, 5 + classes) float32 of one network-input RGB uint8 image (with
         `tta`, of each of its views, together)."""
         x = torch.from_numpy(boxed).to(self.device).permute(2, 0, 1)[None].float().div_(255)
-        return augmented_predictions(self._predict, x) if self.tta else self._predict(x)
+        return augmented_predictions(self._predict, x, self.tta) if self.tta else self._predict(x)
 
     def _predict(self, x: torch.Tensor) -> torch.Tensor:
         """Decoded predictions of a float (1, 3, H, W) input in [0, 1], by the backend."""
