@@ -96,3 +96,25 @@ def test_a_result_without_ground_truth_is_a_clear_error(tmp_path):
     write_mot(tmp_path / "results" / "fold0" / "seq_009_dim.txt", HYP)
     with pytest.raises(SystemExit, match="seq_009_dim.txt: no ground truth"):
         eb.name_counts(tmp_path / "results", tmp_path / "data")
+
+
+def test_unboxed_misses_are_counted_by_target_size_and_age(tmp_path):
+    # one 40 px target (id 1) present frames 1-12, boxed only in frame 12; one 10 px target (id 2) that
+    # appears in frame 11 and is never boxed
+    gt = np.array(
+        [gt_row(f, 1, 0, 0, 40, 20) for f in range(1, 13)]
+        + [gt_row(f, 2, 100, 100, 10, 6) for f in (11, 12)],
+        dtype=float,
+    )
+    hyp = np.array([hyp_row(12, 5, 0, 0, 40, 20)], dtype=float)
+    counts = eb.breakdown(gt, hyp)
+    assert counts["unboxed"] == 13
+    assert {k: counts[k] for k in eb.UNBOXED_KINDS} == {
+        "unboxed_lt16": 2,  # target 2 in frames 11 and 12
+        "unboxed_16_32": 0,
+        "unboxed_32_64": 11,  # target 1 in frames 1-11
+        "unboxed_ge64": 0,
+        "unboxed_early": 10 + 2,  # target 1's frames 1-10 and target 2's two frames
+    }
+    table = eb.write_tables({"row": {0: {"seq_001_dim": dict(counts)}}}, tmp_path, inside=0.8)
+    assert "| dim | 13 | 2 | 0 | 11 | 0 | 12 |" in table.read_text()

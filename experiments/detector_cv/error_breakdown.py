@@ -9,7 +9,9 @@ frame-by-frame matching that scores them (`spacetrack.evaluation.mot.accumulate`
   star, a flare, a parked object);
 - a miss is **part-boxed** when a false positive of that frame is a part of it, **loosely boxed** when a
   false positive overlaps it otherwise, and **unboxed** when no unmatched result touches it (the detector
-  or the tracker gave nothing there).
+  or the tracker gave nothing there). Unboxed misses are counted again by the longer side of the target's
+  box (below 16, 16-32, 32-64, 64 px and up) and by whether they fall in the first 10 frames since the
+  target's first row of truth, where a tracker that confirms a track only after several hits misses it even on perfect boxes.
 
 A part and its part-boxed target are one event counted twice by MOTA. The results are those
 `track_study.py` wrote (`outputs/<study>/<data>/<name>/fold<k>/<sequence>.txt`), so a tracked name's
@@ -41,6 +43,16 @@ from spacetrack.tracking.iou_matching import intersections
 HERE = Path(__file__).resolve().parent
 FP_KINDS = ("part", "loose", "elsewhere")
 FN_KINDS = ("part_boxed", "loosely_boxed", "unboxed")
+# Unboxed misses by the target's size (the longer side of its box, pixels: below 16, 16-32, 32-64, 64 and
+# up) and by whether the miss falls in the target's first EARLY frames of truth (a track not yet confirmed).
+SIZES = (
+    (0, 16, "unboxed_lt16"),
+    (16, 32, "unboxed_16_32"),
+    (32, 64, "unboxed_32_64"),
+    (64, np.inf, "unboxed_ge64"),
+)
+EARLY = 10
+UNBOXED_KINDS = (*(key for _, _, key in SIZES), "unboxed_early")
 
 
 def _first(kinds: tuple[str, str, str], first: bool, second: bool) -> str:
@@ -56,20 +68,20 @@ def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, in
     gt_keep, hyp_keep = scored_rows(gt, hyp, iou_threshold=iou_threshold)
     gt, hyp = gt[gt_keep], hyp[hyp_keep]
     events = accumulate(gt, hyp, iou_threshold=iou_threshold).mot_events
-    counts = Counter({k: 0 for k in (*FP_KINDS, *FN_KINDS, "matches", "switches")})
+    counts = Counter({k: 0 for k in (*FP_KINDS, *FN_KINDS, *UNBOXED_KINDS, "matches", "switches")})
     counts["matches"] = int((events["Type"] == "MATCH").sum() + (events["Type"] == "SWITCH").sum())
     counts["switches"] = int((events["Type"] == "SWITCH").sum())
     gt_box = {(int(f), int(i)): b for f, i, b in zip(gt[:, 0], gt[:, 1], gt[:, 2:6], strict=True)}
     hyp_box = {(int(f), int(i)): b for f, i, b in zip(hyp[:, 0], hyp[:, 1], hyp[:, 2:6], strict=True)}
+    first_seen = {int(i): int(gt[gt[:, 1] == i, 0].min()) for i in np.unique(gt[:, 1])}
     for frame in np.unique(np.concatenate([gt[:, 0], hyp[:, 0]])).astype(int):
         try:
             rows = events.loc[frame]
         except KeyError:
             continue
         fps = np.array([hyp_box[frame, int(h)] for h in rows.loc[rows["Type"] == "FP", "HId"]]).reshape(-1, 4)
-        misses = np.array([gt_box[frame, int(o)] for o in rows.loc[rows["Type"] == "MISS", "OId"]]).reshape(
-            -1, 4
-        )
+        missed_ids = [int(o) for o in rows.loc[rows["Type"] == "MISS", "OId"]]
+        misses = np.array([gt_box[frame, o] for o in missed_ids]).reshape(-1, 4)
         targets = gt[gt[:, 0] == frame, 2:6]
         on_target = intersections(fps, targets)[0] > 0
         part_of_target = coverage(fps, targets) >= inside
@@ -77,8 +89,15 @@ def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, in
             counts[_first(FP_KINDS, part, touches)] += 1
         on_miss = intersections(fps, misses)[0] > 0
         part_of_miss = coverage(fps, misses) >= inside
-        for part, touches in zip(part_of_miss.any(axis=0), on_miss.any(axis=0), strict=True):
-            counts[_first(FN_KINDS, part, touches)] += 1
+        for box, target, part, touches in zip(
+            misses, missed_ids, part_of_miss.any(axis=0), on_miss.any(axis=0), strict=True
+        ):
+            kind = _first(FN_KINDS, part, touches)
+            counts[kind] += 1
+            if kind == "unboxed":
+                side = max(box[2], box[3])
+                counts[next(key for low, high, key in SIZES if low <= side < high)] += 1
+                counts["unboxed_early"] += int(frame - first_seen[target] < EARLY)
     return counts
 
 
@@ -110,12 +129,17 @@ def write_tables(found: dict[str, dict[int, dict[str, dict[str, int]]]], out: Pa
         "| scenario | sequences | matches | FP part | FP loose | FP elsewhere | miss part-boxed | "
         "miss loosely boxed | miss unboxed | switches |"
     )
+    unboxed_head = (
+        "| scenario | unboxed | < 16 px | 16-32 px | 32-64 px | >= 64 px | "
+        f"in the target's first {EARLY} frames |"
+    )
     lines = [
         "False positives and misses of each tracked name, by what lies under them (written by "
         "`error_breakdown.py`; see its docstring): a false positive at least "
         f"{inside:g} inside a target's box is a part, one overlapping a target otherwise is loose, one "
         "touching no target is elsewhere; a miss is part-boxed, loosely boxed or unboxed by the false "
-        "positives on it.",
+        "positives on it. Unboxed misses are also counted by the size of the target's box and by whether "
+        f"they fall in the first {EARLY} frames of the target's truth (before a track of it can be confirmed).",
     ]
     for name, by_fold in found.items():
         by_scenario: dict[str, Counter] = {}
@@ -136,6 +160,16 @@ def write_tables(found: dict[str, dict[int, dict[str, dict[str, int]]]], out: Pa
             n = sum(sequences.values()) if label == "all" else sequences[label]
             cells = [counts["matches"], *(counts[k] for k in (*FP_KINDS, *FN_KINDS)), counts["switches"]]
             lines.append(f"| {label} | {n} | " + " | ".join(str(int(c)) for c in cells) + " |")
+        lines += [
+            "",
+            "Its unboxed misses by target size (longer side) and age:",
+            "",
+            unboxed_head,
+            "|---" * 7 + "|",
+        ]
+        for label, counts in [*sorted(by_scenario.items()), ("all", total)]:
+            cells = [counts["unboxed"], *(counts[k] for k in UNBOXED_KINDS)]
+            lines.append(f"| {label} | " + " | ".join(str(int(c)) for c in cells) + " |")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "errors.json", json.dumps(found, indent=1, sort_keys=True) + "\n")
     atomic_write_text(out / "errors.md", "\n".join(lines) + "\n")
