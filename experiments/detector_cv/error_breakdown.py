@@ -11,7 +11,8 @@ frame-by-frame matching that scores them (`spacetrack.evaluation.mot.accumulate`
   false positive overlaps it otherwise, and **unboxed** when no unmatched result touches it (the detector
   or the tracker gave nothing there). Unboxed misses are counted again by the longer side of the target's
   box (below 16, 16-32, 32-64, 64 px and up) and by whether they fall in the first 10 frames since the
-  target's first row of truth, where a tracker that confirms a track only after several hits misses it even on perfect boxes.
+  target's first row of truth, where a tracker that confirms a track only after several hits misses it
+  even on perfect boxes.
 
 A part and its part-boxed target are one event counted twice by MOTA. The results are those
 `track_study.py` wrote (`outputs/<study>/<data>/<name>/fold<k>/<sequence>.txt`), so a tracked name's
