@@ -81,7 +81,8 @@ def test_tables_per_scenario_from_results_on_disk(tmp_path):
         write_mot(results / "fold4" / f"{seq}.txt", HYP)
     found = {"gam_row": eb.name_counts(results, data)}
     assert set(found["gam_row"][4]) == {"seq_001_dim", "seq_002_nominal"}
-    out = eb.write_tables(found, tmp_path / "study", inside=0.8)
+    by_manifest = {"seq_001_dim": "dim", "seq_002_nominal": "nominal"}
+    out = eb.write_tables(found, tmp_path / "study", inside=0.8, scenario_of=by_manifest)
     text = out.read_text()
     assert "| dim | 1 | 2 | 2 | 1 | 1 | 1 | 1 | 1 | 0 |" in text
     assert "| all | 2 | 4 | 4 | 2 | 2 | 2 | 2 | 2 | 0 |" in text
@@ -116,5 +117,16 @@ def test_unboxed_misses_are_counted_by_target_size_and_age(tmp_path):
         "unboxed_ge64": 0,
         "unboxed_early": 10 + 2,  # target 1's frames 1-10 and target 2's two frames
     }
-    table = eb.write_tables({"row": {0: {"seq_001_dim": dict(counts)}}}, tmp_path, inside=0.8)
+    table = eb.write_tables({"row": {0: {"seq_001_dim": dict(counts)}}}, tmp_path, inside=0.8,
+                            scenario_of={"seq_001_dim": "dim"})  # fmt: skip
     assert "| dim | 13 | 2 | 0 | 11 | 0 | 12 |" in table.read_text()
+
+
+def test_scenarios_come_from_the_manifest_not_the_name(tmp_path):
+    found = {"row": {0: {"clip_a": {"matches": 3}, "clip_b": {"matches": 1}}}}
+    text = eb.write_tables(
+        found, tmp_path, inside=0.8, scenario_of={"clip_a": "dim", "clip_b": "dim"}
+    ).read_text()
+    assert "| dim | 2 | 4 |" in text
+    with pytest.raises(SystemExit, match="sequence clip_b is not in the dataset's manifest"):
+        eb.write_tables(found, tmp_path, inside=0.8, scenario_of={"clip_a": "dim"})

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from spacetrack.config import REPO_ROOT
-from spacetrack.data.layout import read_mot
+from spacetrack.data.layout import load_manifest, read_mot
 from spacetrack.evaluation.mot import accumulate, scored_rows
 from spacetrack.io import atomic_write_text
 from spacetrack.motion.dynamic import coverage
@@ -102,10 +102,9 @@ def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, in
     return counts
 
 
-def scenario(sequence: str) -> str:
-    """`seq_007_dim` -> `dim`: the scenario a rendered sequence's name ends with."""
-    match = re.fullmatch(r"seq_\d+_(.+)", sequence)
-    return match[1] if match else sequence
+def scenarios(data: Path) -> dict[str, str]:
+    """sequence -> scenario, as the dataset's manifest records them."""
+    return {s["name"]: s["scenario"] for s in load_manifest(data)["sequences"]}
 
 
 def name_counts(results: Path, data: Path, **kwargs) -> dict[int, dict[str, dict[str, int]]]:
@@ -124,8 +123,14 @@ def name_counts(results: Path, data: Path, **kwargs) -> dict[int, dict[str, dict
     return out
 
 
-def write_tables(found: dict[str, dict[int, dict[str, dict[str, int]]]], out: Path, inside: float) -> Path:
-    """`errors.md` (one table per tracked name: a line per scenario and the total) and `errors.json`."""
+def write_tables(
+    found: dict[str, dict[int, dict[str, dict[str, int]]]],
+    out: Path,
+    inside: float,
+    scenario_of: dict[str, str],
+) -> Path:
+    """`errors.md` (one table per tracked name: a line per scenario of `scenario_of`, sequence -> scenario,
+    and the total) and `errors.json`."""
     head = (
         "| scenario | sequences | matches | FP part | FP loose | FP elsewhere | miss part-boxed | "
         "miss loosely boxed | miss unboxed | switches |"
@@ -147,8 +152,10 @@ def write_tables(found: dict[str, dict[int, dict[str, dict[str, int]]]], out: Pa
         sequences: Counter = Counter()
         for seqs in by_fold.values():
             for seq, counts in seqs.items():
-                by_scenario.setdefault(scenario(seq), Counter()).update(counts)
-                sequences[scenario(seq)] += 1
+                if seq not in scenario_of:
+                    raise SystemExit(f"{name}: sequence {seq} is not in the dataset's manifest")
+                by_scenario.setdefault(scenario_of[seq], Counter()).update(counts)
+                sequences[scenario_of[seq]] += 1
         total = sum(by_scenario.values(), Counter())
         lines += [
             "",
@@ -206,7 +213,7 @@ def main() -> None:
         found[name] = name_counts(results, data, inside=args.inside)
         if not found[name]:
             raise SystemExit(f"{results}: no fold<k>/seq_*.txt results in it")
-    print(write_tables(found, folder / f"on_{args.data}", args.inside))
+    print(write_tables(found, folder / f"on_{args.data}", args.inside, scenarios(data)))
 
 
 if __name__ == "__main__":

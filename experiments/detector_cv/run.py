@@ -76,6 +76,7 @@ ADDED_LATER = {
     "train.trainer.sync_bn": "False",
     "train.augment.exposure": "0.0",
     "train.augment.exposure_gain": "[0.15, 3.0]",
+    "train.crops.small_bias": "0.0",
 }
 
 

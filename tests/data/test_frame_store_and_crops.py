@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from spacetrack.data.crops import CropDataset, check_crop_size, window_labels
+from spacetrack.data.crops import CropDataset, check_crop_size, pick_target, window_labels
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import frame_paths, load_manifest, read_rgb
 from spacetrack.data.yolo_dataset import YoloDataset, frame_samples, read_labels
@@ -129,6 +129,21 @@ def test_crops_are_native_pixels_around_targets_and_seeded(smoke_dataset, store)
     assert np.array_equal(first[0], data[labelled[0]][0])
     data.set_epoch(1)
     assert any(not np.array_equal(first[0], data[i][0]) for i in labelled[:1])
+
+
+@pytest.mark.parametrize(("small_bias", "ratio"), [(0.0, 1.0), (1.0, 5.0), (2.0, 25.0)])
+def test_small_bias_centres_windows_on_small_targets_more_often(small_bias, ratio):
+    # a 10x10 px and a 50x50 px target on a 100x100 frame: chosen 1:1, 5:1 and 25:1
+    labels = np.array([[0, 0.2, 0.2, 0.1, 0.1], [1, 0.6, 0.6, 0.5, 0.5]], dtype=np.float32)
+    rng = np.random.default_rng(0)
+    picks = np.bincount([pick_target(labels, (100, 100), small_bias, rng) for _ in range(6000)], minlength=2)
+    assert picks[0] / picks[1] == pytest.approx(ratio, rel=0.15)
+
+
+def test_small_bias_out_of_range_is_refused(smoke_dataset, store):
+    with pytest.raises(ValueError, match="small_bias must lie in"):
+        CropDataset(root=smoke_dataset, sequences=sequences(smoke_dataset)[:1], num_classes=3, store=store,
+                    crop_size=64, small_bias=-1.0)  # fmt: skip
 
 
 def test_mosaic_tiles_four_windows(smoke_dataset, store):

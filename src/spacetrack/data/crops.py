@@ -52,6 +52,19 @@ def window_labels(
     return np.column_stack((labels[:, :1], boxes))[keep].astype(np.float32).reshape(-1, 5)
 
 
+def pick_target(
+    labels: np.ndarray, frame_shape: Sequence[int], small_bias: float, rng: np.random.Generator
+) -> int:
+    """The index of the target (of a frame's normalised `class, cx, cy, w, h` rows) a window centres on:
+    any alike (`small_bias` 0), or each with weight side^-small_bias, side = sqrt(box area) in pixels."""
+    if not small_bias:
+        return int(rng.integers(len(labels)))
+    height, width = frame_shape[:2]
+    side = np.sqrt(np.maximum(labels[:, 3] * width * labels[:, 4] * height, 1.0))
+    weight = side**-small_bias
+    return int(rng.choice(len(labels), p=weight / weight.sum()))
+
+
 class CropDataset(Dataset):
     """Native-resolution training windows of the frames of `sequences` (every `frame_stride`-th).
 
@@ -61,6 +74,9 @@ class CropDataset(Dataset):
     jitter: how far a target may sit from the window centre, as a fraction of half the window (0-1).
     mosaic: fraction of samples made of four half-size windows of four frames (0-1).
     min_visibility: a box cut by the window edge is kept while this fraction of it is inside (0-1).
+    small_bias: how much more often a window centres on a small target than on a large one of the same
+        frame: a target is chosen with weight side^-small_bias, side the square root of its box area in
+        pixels (0: every target alike; 1: a 10-px target five times as often as a 50-px one).
     reexposure: re-exposes (and enhances) a whole frame before its window is cut, for an enhanced
         detector (`spacetrack.data.exposure.FrameExposure`); None reads every frame from `store`.
     """
@@ -78,6 +94,7 @@ class CropDataset(Dataset):
         jitter: float = 0.8,
         mosaic: float = 0.0,
         min_visibility: float = 0.4,
+        small_bias: float = 0.0,
         augment: A.Compose | None = None,
         seed: int = 0,
         reexposure: FrameExposure | None = None,
@@ -85,6 +102,8 @@ class CropDataset(Dataset):
         for name, value in (("background", background), ("jitter", jitter), ("mosaic", mosaic)):
             if not 0 <= value <= 1:
                 raise ValueError(f"crops: {name} must lie in [0, 1], got {value}")
+        if not 0 <= small_bias <= 4:
+            raise ValueError(f"crops: small_bias must lie in [0, 4], got {small_bias}")
         self.samples = frame_samples(Path(root), sequences, store.image_dir, frame_stride, num_classes)
         store.prepare(sequences)
         self.store, self.crop_size = store, crop_size
@@ -94,6 +113,7 @@ class CropDataset(Dataset):
             raise ValueError(f"no labelled target in the training frames of {root}: nothing to learn from")
         self.background, self.jitter, self.mosaic = background, jitter, mosaic
         self.min_visibility, self.augment, self.seed = min_visibility, augment, seed
+        self.small_bias = small_bias
         self.reexposure = reexposure
         self.epoch = 0
 
@@ -112,7 +132,7 @@ class CropDataset(Dataset):
             image = self.store.frame(seq, frame)
         height, width = image.shape[:2]
         if len(labels) and rng.random() >= self.background:
-            _, cx, cy, _, _ = labels[rng.integers(len(labels))]
+            _, cx, cy, _, _ = labels[pick_target(labels, (height, width), self.small_bias, rng)]
             offset = rng.uniform(-1, 1, size=2) * self.jitter * size / 2
             x0 = round(cx * width - size / 2 + offset[0])
             y0 = round(cy * height - size / 2 + offset[1])
