@@ -116,10 +116,21 @@ def test_unboxed_misses_are_counted_by_target_size_and_age(tmp_path):
         "unboxed_32_64": 11,  # target 1 in frames 1-11
         "unboxed_ge64": 0,
         "unboxed_early": 10 + 2,  # target 1's frames 1-10 and target 2's two frames
+        "unboxed_gap": 0,  # neither was matched before
     }
     table = eb.write_tables({"row": {0: {"seq_001_dim": dict(counts)}}}, tmp_path, inside=0.8,
                             scenario_of={"seq_001_dim": "dim"})  # fmt: skip
-    assert "| dim | 13 | 2 | 0 | 11 | 0 | 12 |" in table.read_text()
+    assert "| dim | 13 | 2 | 0 | 11 | 0 | 12 | 0 |" in table.read_text()
+
+
+def test_unboxed_misses_just_after_a_match_are_gaps_in_a_live_track():
+    # one 40 px target present frames 1-20, boxed on frames 1-8 and 15, unboxed on the rest
+    gt = np.array([gt_row(f, 1, 0, 0, 40, 20) for f in range(1, 21)], dtype=float)
+    hyp = np.array([hyp_row(f, 5, 0, 0, 40, 20) for f in (*range(1, 9), 15)], dtype=float)
+    counts = eb.breakdown(gt, hyp)
+    assert counts["unboxed"] == 11
+    # frames 9-13 follow the match of frame 8 by 1-5 frames, 16-20 the one of frame 15; 14 is 6 after 8
+    assert counts["unboxed_gap"] == 5 + 5
 
 
 def test_scenarios_come_from_the_manifest_not_the_name(tmp_path):

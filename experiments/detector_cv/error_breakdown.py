@@ -12,7 +12,8 @@ frame-by-frame matching that scores them (`spacetrack.evaluation.mot.accumulate`
   or the tracker gave nothing there). Unboxed misses are counted again by the longer side of the target's
   box (below 16, 16-32, 32-64, 64 px and up) and by whether they fall in the first 10 frames since the
   target's first row of truth, where a tracker that confirms a track only after several hits misses it
-  even on perfect boxes.
+  even on perfect boxes, and by whether they fall within 5 frames after the target's last match: a short
+  gap in a live track, which a tracker could bridge, rather than a stretch where no track holds it.
 
 A part and its part-boxed target are one event counted twice by MOTA. The results are those
 `track_study.py` wrote (`outputs/<study>/<data>/<name>/fold<k>/<sequence>.txt`), so a tracked name's
@@ -53,7 +54,10 @@ SIZES = (
     (64, np.inf, "unboxed_ge64"),
 )
 EARLY = 10
-UNBOXED_KINDS = (*(key for _, _, key in SIZES), "unboxed_early")
+# ... and by whether it falls within GAP frames after the target's last match (a short gap in a live track,
+# which a tracker could bridge, rather than a stretch where no track holds the target).
+GAP = 5
+UNBOXED_KINDS = (*(key for _, _, key in SIZES), "unboxed_early", "unboxed_gap")
 
 
 def _first(kinds: tuple[str, str, str], first: bool, second: bool) -> str:
@@ -75,6 +79,7 @@ def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, in
     gt_box = {(int(f), int(i)): b for f, i, b in zip(gt[:, 0], gt[:, 1], gt[:, 2:6], strict=True)}
     hyp_box = {(int(f), int(i)): b for f, i, b in zip(hyp[:, 0], hyp[:, 1], hyp[:, 2:6], strict=True)}
     first_seen = {int(i): int(gt[gt[:, 1] == i, 0].min()) for i in np.unique(gt[:, 1])}
+    last_match: dict[int, int] = {}
     for frame in np.unique(np.concatenate([gt[:, 0], hyp[:, 0]])).astype(int):
         try:
             rows = events.loc[frame]
@@ -99,6 +104,9 @@ def breakdown(gt: np.ndarray, hyp: np.ndarray, *, iou_threshold: float = 0.5, in
                 side = max(box[2], box[3])
                 counts[next(key for low, high, key in SIZES if low <= side < high)] += 1
                 counts["unboxed_early"] += int(frame - first_seen[target] < EARLY)
+                counts["unboxed_gap"] += int(frame - last_match.get(target, -GAP - 1) <= GAP)
+        for target in rows.loc[rows["Type"].isin(("MATCH", "SWITCH")), "OId"]:
+            last_match[int(target)] = frame
     return counts
 
 
@@ -137,7 +145,7 @@ def write_tables(
     )
     unboxed_head = (
         "| scenario | unboxed | < 16 px | 16-32 px | 32-64 px | >= 64 px | "
-        f"in the target's first {EARLY} frames |"
+        f"in the target's first {EARLY} frames | within {GAP} frames of its last match |"
     )
     lines = [
         "False positives and misses of each tracked name, by what lies under them (written by "
@@ -145,7 +153,8 @@ def write_tables(
         f"{inside:g} inside a target's box is a part, one overlapping a target otherwise is loose, one "
         "touching no target is elsewhere; a miss is part-boxed, loosely boxed or unboxed by the false "
         "positives on it. Unboxed misses are also counted by the size of the target's box and by whether "
-        f"they fall in the first {EARLY} frames of the target's truth (before a track of it can be confirmed).",
+        f"they fall in the first {EARLY} frames of the target's truth (before a track of it can be confirmed) "
+        f"or within {GAP} frames after the target's last match (a short gap in a live track).",
     ]
     for name, by_fold in found.items():
         by_scenario: dict[str, Counter] = {}
@@ -173,7 +182,7 @@ def write_tables(
             "Its unboxed misses by target size (longer side) and age:",
             "",
             unboxed_head,
-            "|---" * 7 + "|",
+            "|---" * 8 + "|",
         ]
         for label, counts in [*sorted(by_scenario.items()), ("all", total)]:
             cells = [counts["unboxed"], *(counts[k] for k in UNBOXED_KINDS)]

@@ -213,7 +213,8 @@ def _without_unused(settings: dict) -> dict:
     if "part_overlap" in settings["detector"] and settings["detector"]["part_overlap"] is None:
         del settings["detector"]["part_overlap"]  # with no part suppression
     before_options = (("camera_motion", False), ("output_box", "state"), ("reacquire_gate", None),
-                      ("coast_in_view", False), ("occluded_area", None), ("low_confidence", None))  # fmt: skip
+                      ("coast_in_view", False), ("occluded_area", None), ("low_confidence", None),
+                      ("motion_rescue", False))  # fmt: skip
     for key, before in before_options:
         if key in settings["tracker"] and settings["tracker"][key] == before:
             del settings["tracker"][key]

@@ -269,3 +269,49 @@ def test_a_negative_low_confidence_is_refused_and_one_at_min_confidence_or_above
     reference = plain(run_scored(_faded_target()))
     for value in (0.5, 0.7):  # no detection scores from it up to min_confidence 0.5
         assert plain(run_scored(_faded_target(), low_confidence=value)) == reference
+
+
+def _blobs_of_faded_target(f):
+    """The motion stage's blobs for `_faded_target`'s frame f: the moving target's own box and a stray
+    blob far from it."""
+    return np.array([(100 + 4 * f, 100, 20, 40), (30, 400, 8, 8)], dtype=float)
+
+
+def run_with_blobs(frames, blobs, **overrides):
+    """Like `run_scored`, passing frame f's `blobs(f)` to `step`."""
+    tracker = DeepSort(**{**ORIGINAL, "min_confidence": 0.5, **overrides})
+    outputs = []
+    for f, dets in enumerate(frames):
+        tlwh = np.array([d[:4] for d in dets], dtype=float).reshape(-1, 4)
+        feature = np.array([FEATURES[d[4]] for d in dets]).reshape(-1, 4)
+        rows = tracker.step(tlwh, np.array([d[5] for d in dets]), feature, blobs=blobs(f))
+        outputs.append({int(r[0]): r[1:] for r in rows})
+    return outputs, tracker
+
+
+def test_motion_rescue_keeps_a_track_on_the_blob_of_a_target_the_detector_misses():
+    # the detector gives nothing for the target on frames 10-19 (below even a low floor: score 0.1)
+    frames = _faded_target(low_score=0.1)
+    reference, _ = run_with_blobs(frames, _blobs_of_faded_target)
+    assert all(not reference[f] for f in range(11, 20))  # blobs ignored: a gap
+    out, _ = run_with_blobs(frames, _blobs_of_faded_target, motion_rescue=True)
+    assert all(out[f].keys() == {1} for f in range(2, 30))  # one track throughout
+    assert abs(out[15][1][0] - (100 + 4 * 15)) < 1  # on the blob's box
+    assert not any(ids_near(o, 30) for o in out)  # a blob alone never starts a track
+
+
+def test_motion_rescue_leaves_blobs_that_touch_a_detection_to_it():
+    # target A (x 100-120) detected throughout; target B beside it (x 122-142) detected on frames 0-7 only
+    frames = [
+        [(100, 100, 20, 40, 0, 0.9), *([(122, 100, 20, 40, 1, 0.9)] if f < 8 else [])] for f in range(16)
+    ]
+
+    def b_frames(blob):
+        out, _ = run_with_blobs(frames, lambda f: np.array([blob], float), motion_rescue=True)
+        (b,) = ids_near(out[7], 122)
+        return [f for f, o in enumerate(out) if b in o]
+
+    assert b_frames((121, 100, 21, 40)) == list(range(2, 16))  # a blob on B alone keeps B's track
+    assert b_frames((119, 100, 23, 40)) == list(
+        range(2, 9)
+    )  # one touching A is A's: B coasts one frame, ends

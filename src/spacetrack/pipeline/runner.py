@@ -21,7 +21,7 @@ from tqdm import tqdm
 from spacetrack.data.geometry import CLASS_NAMES
 from spacetrack.data.layout import BOX, CONF
 from spacetrack.io import atomic_write_text
-from spacetrack.motion.blobs import Blob
+from spacetrack.motion.blobs import Blob, blob_boxes
 from spacetrack.motion.dynamic import DynamicFilter, DynamicHold
 from spacetrack.pipeline.cache import CachedSequence, CacheKey, DetectionCache
 from spacetrack.pipeline.outputs import Annotator
@@ -278,6 +278,7 @@ def _track(
         for item in frames:
             keep = _reaching_tracker(item, mode, hold)
             dets = item.rows[keep]
+            rescue = getattr(tracker, "motion_rescue", False) and item.blobs is not None
             with timer("tracker"):
                 out = tracker.step(
                     dets[:, BOX],
@@ -286,6 +287,7 @@ def _track(
                     dynamic=item.dynamic[keep] if mode == "track" else None,
                     image=item.image,
                     classes=item.classes[keep],
+                    **({"blobs": blob_boxes(item.blobs)} if rescue else {}),
                 )
                 named = tracker.output_classes()
             if hold is not None:

@@ -6,11 +6,13 @@ paper's Table 2 maps onto them one to one.
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 
 from spacetrack.data.layout import BOX, CONF
 from spacetrack.tracking.camera_motion import CameraMotion
-from spacetrack.tracking.class_vote import ClassVotes
+from spacetrack.tracking.class_vote import UNKNOWN, ClassVotes
 from spacetrack.tracking.detection import Detections
 from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.io import FEATURES, iter_frames
@@ -55,6 +57,12 @@ class DeepSort:
         overlap (ByteTrack's second association, see `Tracker`); they never start a track. At or above
         `min_confidence` no detection is in that range (so a sweep of `min_confidence` may cross it).
         None: dropped, as the reference does.
+    motion_rescue: beyond the reference, the moving blobs passed to `step` that touch no detection of the
+        frame (kept or low-scored) are offered, like the low-scored detections and with them, to the
+        confirmed tracks every other stage left unmatched, by box overlap: a small or faint target the
+        detector misses for a few frames while the motion stage still sees it keeps its track on the
+        blob's box. A blob adds no appearance feature and no class vote, and starts no track.
+        False: blobs only flag detections dynamic.
     """
 
     def __init__(
@@ -77,6 +85,7 @@ class DeepSort:
         coast_in_view: bool = False,
         occluded_area: float | None = None,
         low_confidence: float | None = None,
+        motion_rescue: bool = False,
     ) -> None:
         if low_confidence is not None and not low_confidence >= 0.0:
             raise ValueError(f"tracker.low_confidence must be >= 0 or null, got {low_confidence}")
@@ -101,6 +110,7 @@ class DeepSort:
         self.camera = CameraMotion(camera_motion)
         self.min_confidence = min_confidence
         self.low_confidence = low_confidence
+        self.motion_rescue = bool(motion_rescue)
         self.nms_max_overlap = nms_max_overlap
         self.min_detection_height = min_detection_height
 
@@ -118,6 +128,7 @@ class DeepSort:
         dynamic: np.ndarray | None = None,
         image: np.ndarray | None = None,
         classes: np.ndarray | None = None,
+        blobs: np.ndarray | None = None,
     ) -> np.ndarray:
         """Track one frame of detections (boxes `tlwh` (N, 4) pixels, confidences (N,), features (N, D)).
 
@@ -125,6 +136,7 @@ class DeepSort:
         image: the frame (RGB or grey uint8), for `camera_motion`; None applies no shift.
         classes: (N,) the detector's class index of each box, for each track's class vote (`class_votes`);
             None: unknown.
+        blobs: (B, 4) `tlwh` boxes of the frame's moving blobs, for `motion_rescue` (None: no blobs).
         Returns the frame's output tracks as rows (track id, x, y, w, h), box `tlwh` of the track state.
         """
         tlwh = np.asarray(tlwh, dtype=float).reshape(-1, 4)
@@ -152,6 +164,8 @@ class DeepSort:
             below = self._kept(tlwh, under, self.low_confidence)
             duplicate = iou_matrix(tlwh[below], tlwh[keep]).max(axis=1, initial=0.0) >= LOW_DUPLICATE_IOU
             low = chosen(below[~duplicate])
+        if self.motion_rescue and blobs is not None:
+            low = self._with_blobs(low, np.asarray(blobs, dtype=float).reshape(-1, 4), tlwh[keep], feature)
         shift = self.camera.update(image)
         self.tracker.predict((float(shift[0]), float(shift[1])))
         offset = self.camera.offset
@@ -163,6 +177,25 @@ class DeepSort:
             low=low,
         )
         return track_rows(self.tracker.outputs())
+
+    @staticmethod
+    def _with_blobs(
+        low: Detections | None, blobs: np.ndarray, kept: np.ndarray, feature: np.ndarray | None
+    ) -> Detections | None:
+        """`low` and the `blobs` that touch no kept or low detection, as detections of score 0 that move,
+        with no class and zero features."""
+        boxes = kept if low is None else np.concatenate([kept, low.tlwh])
+        free = blobs[iou_matrix(blobs, boxes).max(axis=1, initial=0.0) <= 0.0]
+        if not len(free):
+            return low
+        dim = 0 if feature is None else feature.shape[1]
+        parts = [] if low is None else [low]
+        parts.append(
+            Detections.create(
+                free, np.zeros(len(free)), np.zeros((len(free), dim)), None, np.full(len(free), UNKNOWN)
+            )
+        )
+        return Detections(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Detections)))
 
     def _kept(self, tlwh: np.ndarray, confidence: np.ndarray, floor: float) -> np.ndarray:
         """Indices of the detections scoring `floor` or more that pass the height floor and NMS."""
