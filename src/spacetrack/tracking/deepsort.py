@@ -6,8 +6,6 @@ paper's Table 2 maps onto them one to one.
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 import numpy as np
 
 from spacetrack.data.layout import BOX, CONF
@@ -16,7 +14,7 @@ from spacetrack.tracking.class_vote import UNKNOWN, ClassVotes
 from spacetrack.tracking.detection import Detections
 from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.io import FEATURES, iter_frames
-from spacetrack.tracking.iou_matching import iou_matrix
+from spacetrack.tracking.iou_matching import intersections, iou_matrix
 from spacetrack.tracking.kalman_filter import CHI2_95_4DOF
 from spacetrack.tracking.nn_matching import NearestNeighborDistanceMetric
 from spacetrack.tracking.preprocessing import filter_detections
@@ -185,17 +183,13 @@ class DeepSort:
         """`low` and the `blobs` that touch no kept or low detection, as detections of score 0 that move,
         with no class and zero features."""
         boxes = kept if low is None else np.concatenate([kept, low.tlwh])
-        free = blobs[iou_matrix(blobs, boxes).max(axis=1, initial=0.0) <= 0.0]
+        free = blobs[~(intersections(blobs, boxes)[0] > 0).any(axis=1)]
         if not len(free):
             return low
         dim = 0 if feature is None else feature.shape[1]
-        parts = [] if low is None else [low]
-        parts.append(
-            Detections.create(
-                free, np.zeros(len(free)), np.zeros((len(free), dim)), None, np.full(len(free), UNKNOWN)
-            )
-        )
-        return Detections(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Detections)))
+        moving = Detections.create(free, np.zeros(len(free)), np.zeros((len(free), dim)), None,
+                                   np.full(len(free), UNKNOWN))  # fmt: skip
+        return moving if low is None else low.concat(moving)
 
     def _kept(self, tlwh: np.ndarray, confidence: np.ndarray, floor: float) -> np.ndarray:
         """Indices of the detections scoring `floor` or more that pass the height floor and NMS."""

@@ -75,5 +75,15 @@ class Detections:
             self.classes[index],
         )
 
+    def concat(self, other: Detections) -> Detections:
+        """These detections followed by `other`'s (features of the same dimension)."""
+        return Detections(
+            np.concatenate([self.tlwh, other.tlwh]),
+            np.concatenate([self.confidence, other.confidence]),
+            np.concatenate([self.feature, other.feature]),
+            np.concatenate([self.dynamic, other.dynamic]),
+            np.concatenate([self.classes, other.classes]),
+        )
+
     def to_xyah(self) -> np.ndarray:
         return tlwh_to_xyah(self.tlwh)
