@@ -10,7 +10,7 @@ import numpy as np
 
 from spacetrack.data.layout import BOX, CONF
 from spacetrack.tracking.camera_motion import CameraMotion
-from spacetrack.tracking.class_vote import UNKNOWN, ClassVotes
+from spacetrack.tracking.class_vote import ClassVotes
 from spacetrack.tracking.detection import Detections
 from spacetrack.tracking.dynamic import TrackDynamics
 from spacetrack.tracking.io import FEATURES, iter_frames
@@ -187,8 +187,7 @@ class DeepSort:
         if not len(free):
             return low
         dim = 0 if feature is None else feature.shape[1]
-        moving = Detections.create(free, np.zeros(len(free)), np.zeros((len(free), dim)), None,
-                                   np.full(len(free), UNKNOWN))  # fmt: skip
+        moving = Detections.create(free, np.zeros(len(free)), np.zeros((len(free), dim)))
         return moving if low is None else low.concat(moving)
 
     def _kept(self, tlwh: np.ndarray, confidence: np.ndarray, floor: float) -> np.ndarray:

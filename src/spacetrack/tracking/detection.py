@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spacetrack.tracking.class_vote import UNKNOWN
+
 
 def tlwh_to_xyah(tlwh: np.ndarray) -> np.ndarray:
     """(..., 4) boxes `tlwh` (top-left x, y, width, height; pixels) -> `xyah` (centre, aspect w/h, height)."""
@@ -58,7 +60,9 @@ class Detections:
             norm = np.linalg.norm(feature, axis=1, keepdims=True)
             feature = feature / np.where(norm > 0, norm, 1.0)
         dynamic = np.ones(len(tlwh), bool) if dynamic is None else np.asarray(dynamic, dtype=bool).reshape(-1)
-        classes = np.full(len(tlwh), -1) if classes is None else np.asarray(classes).astype(int).reshape(-1)
+        classes = (
+            np.full(len(tlwh), UNKNOWN) if classes is None else np.asarray(classes).astype(int).reshape(-1)
+        )
         return cls(tlwh, confidence, feature, dynamic, classes)
 
     def __len__(self) -> int:
