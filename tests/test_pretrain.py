@@ -68,3 +68,21 @@ def test_second_stage_renders_the_first_stages_scenes_and_more_and_keeps_an_epoc
     assert windows(first) == windows(second) == 5400
     assert second.train.trainer.epochs == 12 and second.weights == "none"  # make pretrain passes the start
     assert second.train.image_size == first.train.image_size and second.train.input == "crops"
+
+
+def test_fourth_stage_reads_every_rendered_scene_in_short_sequences():
+    third = compose_config("pretrain", ["data=pretrain_756", "train=pretrain_756"])
+    fourth = compose_config("pretrain", ["data=pretrain_2016", "train=pretrain_2016"])
+    # the same scenarios, truth and camera; only the count, length and folds of the sequences differ
+    differs = {k for k in third.data if third.data[k] != fourth.data[k]}
+    assert differs == {"name", "num_sequences", "num_frames", "num_folds"}
+    # long enough for the occlusion scenario's hidden run, which the builder refuses below 40 frames
+    assert fourth.data.num_frames >= 40
+    # the folds are of one size: 72 held-out sequences monitor it, the rest train
+    held_out = fourth.data.num_sequences // fourth.data.num_folds
+    assert fourth.data.num_sequences % fourth.data.num_folds == 0 and held_out == 72
+    # the frame store keeps every gcd(stride, val stride)-th frame: the validation frames are training ones
+    assert fourth.train.val_frame_stride % fourth.train.frame_stride == 0
+    frames = -(-fourth.data.num_frames // fourth.train.frame_stride)
+    assert (fourth.data.num_sequences - held_out) * frames == 13608
+    assert fourth.train.trainer.epochs == 8 and fourth.train.trainer.lr0 == third.train.trainer.lr0
