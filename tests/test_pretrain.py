@@ -50,6 +50,12 @@ def test_pretrain_config_trains_on_the_pretraining_set_from_scratch():
     assert cfg.data.truth == "silhouette"  # what the shipped pretrained files learnt from
 
 
+def windows(cfg) -> int:
+    """Windows in a pretraining epoch: training sequences (all folds but one) x frames the stride reads."""
+    training = cfg.data.num_sequences * (cfg.data.num_folds - 1) // cfg.data.num_folds
+    return training * -(-cfg.data.num_frames // cfg.train.frame_stride)
+
+
 def test_second_stage_renders_the_first_stages_scenes_and_more_and_keeps_an_epochs_size():
     first = compose_config("pretrain")
     second = compose_config("pretrain", ["data=pretrain_252", "train=pretrain_252"])
@@ -60,11 +66,7 @@ def test_second_stage_renders_the_first_stages_scenes_and_more_and_keeps_an_epoc
     differs = {k for k in first.data if first.data[k] != second.data[k]}
     assert differs == {"name", "num_sequences"}
 
-    # an epoch holds as many windows as the first stage's: training sequences x frames / stride
-    def windows(cfg):
-        training = cfg.data.num_sequences * (cfg.data.num_folds - 1) // cfg.data.num_folds
-        return training * (cfg.data.num_frames // cfg.train.frame_stride)
-
+    # an epoch holds as many windows as the first stage's
     assert windows(first) == windows(second) == 5400
     assert second.train.trainer.epochs == 12 and second.weights == "none"  # make pretrain passes the start
     assert second.train.image_size == first.train.image_size and second.train.input == "crops"
@@ -83,6 +85,5 @@ def test_fourth_stage_reads_every_rendered_scene_in_short_sequences():
     assert fourth.data.num_sequences % fourth.data.num_folds == 0 and held_out == 72
     # the frame store keeps every gcd(stride, val stride)-th frame: the validation frames are training ones
     assert fourth.train.val_frame_stride % fourth.train.frame_stride == 0
-    frames = -(-fourth.data.num_frames // fourth.train.frame_stride)
-    assert (fourth.data.num_sequences - held_out) * frames == 13608
+    assert windows(fourth) == 13608
     assert fourth.train.trainer.epochs == 8 and fourth.train.trainer.lr0 == third.train.trainer.lr0
