@@ -23,11 +23,12 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 SMALL_NET = {"input_height": 32, "input_width": 16, "feature_dim": 8}
 
 
-@pytest.fixture
-def tiny_yolo(tmp_path, one_torch_thread):
-    """A random-init YOLOv5 at 1/8 width in a checkpoint: real layers, fast export."""
+@pytest.fixture(params=[False, True], ids=["three_levels", "p2"])
+def tiny_yolo(request, tmp_path, one_torch_thread):
+    """A random-init YOLOv5 at 1/8 width in a checkpoint: real layers, fast export; with and without the
+    stride-4 level."""
     torch.manual_seed(0)
-    model = YOLOv5(num_classes=3, width_multiple=0.125)
+    model = YOLOv5(num_classes=3, width_multiple=0.125, p2=request.param)
     weights = tmp_path / "best.pt"
     save_checkpoint(weights, {"arch": model.arch, "ema": model.state_dict()})
     return weights
@@ -76,7 +77,11 @@ def test_native_resolution_exports_one_graph_per_frame_size(tiny_yolo, onnx_dir)
     boxes = native(rgb, 1)
     assert sorted(p.name.split("-")[0] for p in onnx_dir.glob("*.onnx")) == ["yolo64x160"]
     assert "size=native" in native.identity
-    assert np.allclose(boxes[:5, :4], by_torch(rgb, 1)[:5, :4], atol=1e-2)
+    reference = by_torch(rgb, 1)
+    # random weights score many boxes alike, so ties may come out in either order: the scores agree in
+    # order, and each of the five best boxes is one of the torch backend's
+    assert np.allclose(boxes[:20, 4], reference[:20, 4], atol=1e-4)
+    assert all(np.isclose(reference[:, :6], row, atol=1e-2).all(axis=1).any() for row in boxes[:5, :6])
 
 
 def test_encoder_onnxruntime_matches_torch_at_any_batch(tmp_path):

@@ -56,6 +56,7 @@ VARIANTS = {
     "dwt_hsv": ("+DWT/HSV", ["model=yolov5s", "enhance=dwt_hsv"]),
     "gam": ("+GAM", ["model=yolov5s_gam", "enhance=none"]),
     "dwt_hsv_gam": ("+DWT/HSV +GAM", ["model=yolov5s_gam", "enhance=dwt_hsv"]),
+    "yolov5s_p2": ("YOLOv5s + stride-4 level", ["model=yolov5s_p2", "enhance=none"]),
 }
 METRICS = ("map50", "map50_95", "recall_at_score")
 # The detections a detector is scored on: every box above a low score, YOLOv5's validation NMS.
@@ -285,8 +286,13 @@ def table(results: list[dict]) -> str:
     start_only = all(r.get("start_only") for r in results)
     scored = "the start's weights, not fine-tuned" if start_only else "each fold's best epoch"
     if all(r.get("tta") for r in results):
-        scored += ", detected with test-time augmentation (scale, mirrored: " + ", ".join(
-            f"{scale} {'mirrored' if mirrored else 'as is'}" for scale, mirrored in results[0]["tta"]) + ")"
+        scored += (
+            ", detected with test-time augmentation (scale, mirrored: "
+            + ", ".join(
+                f"{scale} {'mirrored' if mirrored else 'as is'}" for scale, mirrored in results[0]["tta"]
+            )
+            + ")"
+        )
     return (
         f"Overrides `{'`, `'.join(overrides)}`; {scored}, native 640x480 frames.\n\n"
         + "\n".join(lines)

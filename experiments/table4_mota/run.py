@@ -206,6 +206,8 @@ def _without_unused(settings: dict) -> dict:
     settings["detector_run"] = {
         "model" if k == "gam_position" else k: v for k, v in settings["detector_run"].items()
     }
+    if settings["detector_run"].get("p2") is False:
+        del settings["detector_run"]["p2"]  # every run's detector had three levels before
     if settings["detector"].get("score") == "class":
         del settings["detector"]["score"]  # a detection's score was always objectness x class before
     if settings["detector"].get("agnostic_nms") is False:

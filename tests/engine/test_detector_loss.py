@@ -95,3 +95,18 @@ def test_iou_ratio_sets_the_objectness_target_of_matched_anchors():
     assert by_one[1] < by_iou[1]
     with pytest.raises(ValueError, match="iou_ratio must lie in"):
         make_loss(3, iou_ratio=1.5)
+
+
+def test_a_stride_4_level_gets_its_own_balance_and_learns_small_targets():
+    from spacetrack.models.yolo import P2_ANCHORS
+
+    anchors = torch.tensor([*COCO_ANCHORS, P2_ANCHORS]).view(4, 3, 2)
+    strides = torch.tensor([8.0, 16.0, 32.0, 4.0])
+    loss = YoloLoss(anchors=anchors, strides=strides, num_classes=1, image_size=SIZE, balance_p2=16.0)
+    assert loss.balance == [4.0, 1.0, 0.4, 16.0]
+    with pytest.raises(ValueError, match="balance has 2 entries for 4 detection levels"):
+        YoloLoss(anchors=anchors, strides=strides, num_classes=1, image_size=SIZE, balance=(4.0, 1.0))
+    outputs = [torch.zeros(1, 3, SIZE // s, SIZE // s, 6) for s in (8, 16, 32, 4)]
+    levels = loss.assign(outputs, anchor_sized_target(10.5, 20.5))
+    b, a, gj, gi, *_ = levels[3]  # the 10x13 target also matches the stride-4 anchors, at its finer cell
+    assert len(b) > 0 and set(gi.tolist()) >= {21} and set(gj.tolist()) >= {41}

@@ -57,6 +57,33 @@ def test_another_architecture_is_an_error_unless_partial(tmp_path):
     assert gam_tensors and str(len(gam.state_dict()) - len(gam_tensors)) in note
 
 
+def test_a_stride_4_model_loads_the_three_level_file_as_it_is(tmp_path, monkeypatch):
+    torch.manual_seed(0)
+    source = tiny_model()
+    shipped(tmp_path / "yolov5s_pretrained.pt", source)
+    target = tiny_model(p2=True)
+    new = {
+        k: v.clone()
+        for k, v in target.state_dict().items()
+        if k.startswith(("lateral3.", "top_down2.", "detect.m.3."))
+    }
+    note = load_pretrained(target, tmp_path / "yolov5s_pretrained.pt")  # no partial needed
+    assert "the stride-4 level is new" in note and "architecture differs" not in note
+    state = target.state_dict()
+    assert new and all(torch.equal(state[k], v) for k, v in new.items())
+    assert (
+        f"loaded {len(state) - len(new) - 2} of {len(state)}" in note
+    )  # all but the new level, anchors, strides
+    assert torch.allclose(state["detect.m.0.weight"], source.state_dict()["detect.m.0.weight"].half().float())
+    monkeypatch.setitem(pretrained.PRETRAINED, None, tmp_path / "yolov5s_pretrained.pt")
+    assert resolve_weights("auto", target.arch) == tmp_path / "yolov5s_pretrained.pt"
+    shipped(tmp_path / "yolov5s_p2_pretrained.pt", target)  # one made for the level wins
+    assert resolve_weights("auto", target.arch) == tmp_path / "yolov5s_p2_pretrained.pt"
+    assert resolve_weights("auto", tiny_model().arch) == tmp_path / "yolov5s_pretrained.pt"
+    with pytest.raises(ValueError, match="another architecture .*p2"):  # the other way round
+        load_pretrained(tiny_model(), tmp_path / "yolov5s_p2_pretrained.pt")
+
+
 def test_auto_takes_the_shipped_file_of_the_same_architecture_only(tmp_path, monkeypatch):
     plain = tiny_model()
     monkeypatch.setitem(pretrained.PRETRAINED, None, tmp_path / "yolov5s_pretrained.pt")

@@ -50,3 +50,33 @@ def test_gam_is_inserted_where_configured(position):
 def test_unknown_gam_position_is_refused():
     with pytest.raises(ValueError, match="neck"):
         YOLOv5(num_classes=1, gam_position="neck")
+
+
+def test_the_stride_4_level_comes_last_and_leaves_the_three_level_path_as_it_is():
+    torch.manual_seed(0)
+    plain = YOLOv5(num_classes=3).eval()
+    torch.manual_seed(1)
+    p2 = YOLOv5(num_classes=3, p2=True).eval()
+    assert p2.stride.tolist() == [8.0, 16.0, 32.0, 4.0]
+    assert (
+        p2.arch["p2"] is True and "p2" not in plain.arch
+    )  # older files keep the arch they were written with
+    assert p2.detect.anchors[3].tolist() == [[5.0, 6.5], [8.0, 15.0], [16.5, 11.5]]
+    # Every tensor of the three-level network has its name and shape in the four-level one.
+    shapes = {k: v.shape for k, v in p2.state_dict().items()}
+    own = {k: v for k, v in plain.state_dict().items() if k not in ("detect.anchors", "detect.stride")}
+    assert all(shapes[k] == v.shape for k, v in own.items())
+    p2.load_state_dict(own, strict=False)
+    x = torch.rand(1, 3, 96, 128)
+    with torch.no_grad():
+        three, four = plain(x), p2(x)
+    assert [tuple(p.shape) for p in four] == [
+        (1, 3, 12, 16, 8), (1, 3, 6, 8, 8), (1, 3, 3, 4, 8), (1, 3, 24, 32, 8)
+    ]  # fmt: skip
+    assert all(torch.equal(a, b) for a, b in zip(three, four[:3], strict=True))
+    assert p2.predict(x).shape == (1, 3 * (12 * 16 + 6 * 8 + 3 * 4 + 24 * 32), 8)
+
+
+def test_anchor_levels_must_match_the_head():
+    with pytest.raises(ValueError, match="3 anchor levels for a 4-level head"):
+        YOLOv5(num_classes=1, p2=True, anchors=((10, 13, 16, 30, 33, 23),) * 3)

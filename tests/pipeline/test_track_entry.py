@@ -195,6 +195,21 @@ def test_fold_without_trained_model_names_the_command(smoke_dataset, tmp_path):
     ) as err:
         build_module.resolve_weights(cfg)
     assert err.value.train == ("spacetrack.train", ["fold=4", "model=yolov5s_gam", "enhance=dwt_hsv"])
+    for extra, args in (
+        ([], ["model=yolov5s_p2"]),
+        (gam, ["model=yolov5s_gam", "enhance=dwt_hsv", "model.p2=true"]),
+    ):
+        cfg = track_config(
+            smoke_dataset,
+            tmp_path,
+            "fold=4",
+            *extra,
+            "detector_run.p2=true",
+            f"logger.tracking_uri=sqlite:///{tmp_path}/m.db",
+        )
+        with pytest.raises(MissingWeightsError, match="head_levels=4") as err:
+            build_module.resolve_weights(cfg)
+        assert err.value.train == ("spacetrack.train", ["fold=4", *args])
     cfg = track_config(
         smoke_dataset,
         tmp_path,

@@ -40,12 +40,15 @@ class YoloLoss:
         cls: float = 0.5,
         anchor_t: float = 4.0,
         balance: Sequence[float] = (4.0, 1.0, 0.4),
+        balance_p2: float = 16.0,
         iou_ratio: float = 1.0,
     ) -> None:
         if not 0 <= iou_ratio <= 1:
             raise ValueError(f"loss.iou_ratio must lie in [0, 1], got {iou_ratio}")
         self.iou_ratio = iou_ratio
         num_levels = len(anchors)
+        if num_levels == len(balance) + 1:  # a stride-4 level, last in the head (models.yolo, p2)
+            balance = (*balance, balance_p2)
         if len(balance) != num_levels:
             raise ValueError(f"balance has {len(balance)} entries for {num_levels} detection levels")
         # Anchors in grid units of their own level.

@@ -5,6 +5,8 @@
 made for its architecture. Weights with another class count still load: the head's output layers are
 left as initialised, and a log line says so. Weights of another architecture are an error, unless
 `partial` asks for every tensor whose name and shape match (a GAM model started from plain YOLOv5s).
+A model with a stride-4 level (`p2`) loads the three-level file of its kind as it is: the extra level
+comes last in the head, so everything else matches, and the new level keeps its initialisation.
 """
 
 from __future__ import annotations
@@ -23,6 +25,32 @@ PRETRAINED = {
     "after_sppf": REPO_ROOT / "weights" / "yolov5s_gam_pretrained.pt",
 }
 HEAD_PREFIX = "detect.m."
+# What a stride-4 level adds to the arch of the three-level network it extends.
+P2_KEYS = ("p2", "anchors")
+
+
+def _architecture_changes(found: dict, mine: dict) -> str:
+    """The arch keys that differ between a file and a model (class count aside); a model with a stride-4
+    level started from a file without one counts only what differs besides that level."""
+    ignore = ("num_classes",)
+    if mine.get("p2") and not found.get("p2"):
+        ignore += P2_KEYS
+    return differences(found, mine, ignore=ignore)
+
+
+def pretrained_files(arch: dict) -> list[Path]:
+    """The files `auto` may start a model of this arch from, the first that exists and fits winning: that
+    of its GAM position (none when there is no such file name), and for a model with a stride-4 level
+    first one made for that level (`yolov5s_p2_pretrained.pt`, what `spacetrack.pretrain` writes for it)."""
+    path = PRETRAINED.get(arch["gam_position"])
+    if path is None:
+        return []
+    return [p2_name(path), path] if arch.get("p2") else [path]
+
+
+def p2_name(path: Path) -> Path:
+    """The file name of a pretrained model with a stride-4 level: `_p2` before `_pretrained`."""
+    return path.with_name(path.name.replace("_pretrained", "_p2_pretrained"))
 
 
 def resolve_weights(choice: str | None, arch: dict) -> Path | None:
@@ -32,11 +60,10 @@ def resolve_weights(choice: str | None, arch: dict) -> Path | None:
     if choice is None or str(choice).lower() == "none":
         return None
     if str(choice) == "auto":
-        path = PRETRAINED.get(arch["gam_position"])
-        if path is None or not path.is_file():
-            return None
-        found = peek_checkpoint(path).get("arch", {})
-        return None if differences(found, arch, ignore=("num_classes",)) else path
+        for path in pretrained_files(arch):
+            if path.is_file() and not _architecture_changes(peek_checkpoint(path).get("arch", {}), arch):
+                return path
+        return None
     path = Path(choice)
     if not path.is_file():
         raise FileNotFoundError(f"pretrained weights {path} not found (weights=none trains from scratch)")
@@ -51,7 +78,7 @@ def load_pretrained(model: YOLOv5, path: str | Path, *, partial: bool = False) -
     """
     state = load_checkpoint(path)
     found, mine = dict(state["arch"]), dict(model.arch)
-    changed = differences(found, mine, ignore=("num_classes",))
+    changed = _architecture_changes(found, mine)
     if changed and not partial:
         raise ValueError(
             f"pretrained weights {path} are of another architecture ({changed}); use weights made for "
@@ -70,6 +97,8 @@ def load_pretrained(model: YOLOv5, path: str | Path, *, partial: bool = False) -
             f"the head was re-initialised: the weights have {found['num_classes']} classes, "
             f"the dataset {mine['num_classes']}"
         )
+    if mine.get("p2") and not found.get("p2"):
+        notes.append("the stride-4 level is new: it starts from its initialisation")
     if changed:
         notes.append(f"architecture differs ({changed}): the rest keeps its initialisation")
     return "; ".join(notes)

@@ -175,7 +175,9 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     elif resume is None:
         print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
     gam = model.arch["gam_position"] or "none"
-    tags = {"fold": str(cfg.fold), "model": "yolov5s" if gam == "none" else "yolov5s_gam", "gam_position": gam,
+    levels = str(model.detect.num_levels)
+    name = ("yolov5s" if gam == "none" else "yolov5s_gam") + ("_p2" if levels == "4" else "")
+    tags = {"fold": str(cfg.fold), "model": name, "gam_position": gam, "head_levels": levels,
             "enhance": enhancer.name, "data_content": str(content)}  # fmt: skip
     return _Fold(
         model, loss_fn, train_set, val_set, trainer, run_settings, resume, out_dir, class_names, tags

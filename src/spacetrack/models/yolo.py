@@ -1,6 +1,10 @@
 """YOLOv5 (v6/v7 layout: 6x6 stem, C3 blocks, SPPF, PAN neck, three-level anchor head) with optional GAM.
 
 Depth 0.33 and width 0.50 give YOLOv5s: 7,235,389 parameters at 80 classes, 7,022,326 at one class.
+`p2=True` adds a fourth detection level at stride 4 (the backbone's stride-4 features joined with the
+stride-8 neck output, as YOLOv5's P2 models do) for targets of a few pixels. The stride-8 to stride-32
+path is left as it is and the new level comes last in the head, so a three-level file loads into the
+first three (`weights_partial`) and the new level starts from its initialisation.
 `forward` returns the raw head outputs the loss needs; `predict` decodes them into boxes.
 
 Box format of `predict`: (B, N, 5 + num_classes) rows `cx, cy, w, h, objectness, class scores...` in
@@ -21,6 +25,8 @@ from spacetrack.models.gam import GAM, SpatialAttention
 
 # Anchor (w, h) pairs in pixels for strides 8, 16 and 32, fitted by the reference project on COCO.
 COCO_ANCHORS = ((10, 13, 16, 30, 33, 23), (30, 61, 62, 45, 59, 119), (116, 90, 156, 198, 373, 326))
+# Anchors of the optional stride-4 level: the stride-8 ones halved.
+P2_ANCHORS = (5, 6.5, 8, 15, 16.5, 11.5)
 GAM_POSITIONS = (None, "before_sppf", "after_sppf")
 
 
@@ -100,16 +106,21 @@ class YOLOv5(nn.Module):
         num_classes: int,
         depth_multiple: float = 0.33,
         width_multiple: float = 0.50,
-        anchors: Sequence[Sequence[float]] = COCO_ANCHORS,
+        anchors: Sequence[Sequence[float]] | None = None,
         gam_position: str | None = None,
         gam_reduction: int = 4,
         gam_groups: int = 1,
+        p2: bool = False,
     ) -> None:
         super().__init__()
         if gam_position not in GAM_POSITIONS:
             raise ValueError(f"gam_position {gam_position!r} is not one of {GAM_POSITIONS}")
         if num_classes < 1:
             raise ValueError(f"num_classes must be at least 1, got {num_classes}")
+        if anchors is None:
+            anchors = (*COCO_ANCHORS, P2_ANCHORS) if p2 else COCO_ANCHORS
+        if len(anchors) != 3 + bool(p2):
+            raise ValueError(f"{len(anchors)} anchor levels for a {3 + bool(p2)}-level head (p2={p2})")
         # Everything needed to rebuild the network; checkpoints store it and refuse a mismatch.
         self.arch = {
             "num_classes": int(num_classes),
@@ -120,6 +131,8 @@ class YOLOv5(nn.Module):
             "gam_reduction": int(gam_reduction),
             "gam_groups": int(gam_groups),
         }
+        if p2:  # only then, so the three-level network's files keep the arch they were written with
+            self.arch["p2"] = True
         c = [scaled_channels(x, width_multiple) for x in (64, 128, 256, 512, 1024)]
         n = [scaled_depth(x, depth_multiple) for x in (3, 6, 9)]
 
@@ -148,7 +161,12 @@ class YOLOv5(nn.Module):
         self.down4 = Conv(c[3], c[3], 3, 2)
         self.bottom_up5 = C3(c[4], c[4], n[0], shortcut=False)
 
-        self.detect = Detect(num_classes=num_classes, anchors=anchors, channels=(c[2], c[3], c[4]))
+        head_channels: tuple[int, ...] = (c[2], c[3], c[4])
+        if p2:
+            self.lateral3 = Conv(c[2], c[1], 1, 1)
+            self.top_down2 = C3(c[2], c[1], n[0], shortcut=False)
+            head_channels += (c[1],)
+        self.detect = Detect(num_classes=num_classes, anchors=anchors, channels=head_channels)
         with torch.no_grad():
             levels = self(torch.zeros(1, 3, 256, 256))
         self.detect.stride.copy_(torch.tensor([256 / p.shape[2] for p in levels]))
@@ -160,7 +178,8 @@ class YOLOv5(nn.Module):
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         """Raw head outputs per level (see Detect.forward)."""
-        p3 = self.stage3(self.stage2(self.stem(x)))
+        p2 = self.stage2(self.stem(x))
+        p3 = self.stage3(p2)
         p4 = self.stage4(p3)
         p5 = self.stage5(p4)
         h5 = self.lateral5(p5)
@@ -168,7 +187,10 @@ class YOLOv5(nn.Module):
         out3 = self.top_down3(torch.cat((self.up(h4), p3), dim=1))
         out4 = self.bottom_up4(torch.cat((self.down3(out3), h4), dim=1))
         out5 = self.bottom_up5(torch.cat((self.down4(out4), h5), dim=1))
-        return self.detect((out3, out4, out5))
+        if "p2" not in self.arch:
+            return self.detect((out3, out4, out5))
+        out2 = self.top_down2(torch.cat((self.up(self.lateral3(out3)), p2), dim=1))
+        return self.detect((out3, out4, out5, out2))
 
     def predict(self, x: torch.Tensor) -> torch.Tensor:
         """Decoded predictions (B, N, 5 + classes), see the module docstring."""

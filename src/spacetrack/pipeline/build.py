@@ -55,6 +55,8 @@ def _model_overrides(tags: dict[str, str]) -> list[str]:
         out += ["model=yolov5s_gam", f"model.gam_position={tags['gam_position']}"]
     if tags["enhance"] != "none":
         out.append(f"enhance={tags['enhance']}")
+    if tags["head_levels"] == "4":
+        out.append("model.p2=true" if out and out[0].startswith("model=yolov5s_gam") else "model=yolov5s_p2")
     return out
 
 
@@ -69,6 +71,7 @@ def resolve_weights(cfg: DictConfig) -> Weights:
             tags = {
                 "gam_position": str(cfg.detector_run.gam_position),
                 "enhance": str(instantiate(cfg.enhance).name),
+                "head_levels": "4" if cfg.detector_run.get("p2") else "3",
             }
             detector = fold_artifact(
                 experiment=cfg.detector_run.experiment,
@@ -77,6 +80,7 @@ def resolve_weights(cfg: DictConfig) -> Weights:
                 artifact="weights/best.pt",
                 train=("spacetrack.train", [f"fold={cfg.fold}", *_model_overrides(tags)]),
                 tags=tags,
+                tag_defaults={"head_levels": "3"},
                 tracking_uri=cfg.logger.tracking_uri,
             )
     reid = cfg.reid.weights

@@ -46,20 +46,26 @@ def fold_artifact(
     artifact: str,
     train: tuple[str, list[str]],
     tags: dict[str, str] | None = None,
+    tag_defaults: dict[str, str] | None = None,
     tracking_uri: str | None = None,
 ) -> Path:
     """Local path of `artifact` of the newest FINISHED run of `experiment` for `fold` on `dataset`.
 
     tags: further tags the run must carry (e.g. {"gam_position": "after_sppf", "enhance": "dwt_hsv"}).
     train: (module, overrides) of the command that makes such a run, named in the error when none is found.
+    tag_defaults: the value a tag of `tags` has on runs that lack it (runs made before it was added).
     """
     uri = resolve_uri(tracking_uri)
     client = mlflow.MlflowClient(tracking_uri=uri)
     wanted = {"fold": str(fold), **(tags or {})}
+    defaults = tag_defaults or {}
+    searched = {k: v for k, v in wanted.items() if k not in defaults}
     runs = finished_runs(
-        experiment, tags=wanted, params={"data.name": dataset}, tracking_uri=uri, max_results=20
+        experiment, tags=searched, params={"data.name": dataset}, tracking_uri=uri, max_results=20
     )
     for run in runs:
+        if any(run.data.tags.get(k, d) != wanted[k] for k, d in defaults.items() if k in wanted):
+            continue
         names = {a.path for a in client.list_artifacts(run.info.run_id, str(Path(artifact).parent))}
         if artifact in names:
             return artifact_file(run.info.run_id, artifact, tracking_uri=uri)
