@@ -151,6 +151,15 @@ def test_the_study_tracking_driver_tracks_each_row_into_its_own_file_and_refuses
     assert [c[0] for c in calls] == ["yolo_deepsort_paper", "gam_deepsort_paper"]
     piece = json.loads((tmp_path / "wider" / "tracking" / "gam_deepsort_paper_fold2.json").read_text())
     assert piece["weights"].endswith("dwt_hsv_gam_fold2/weights/best.pt")
+    # --yolo-variant: the yolo_ rows track another variant's detector of the study
+    monkeypatch.setattr("sys.argv", argv + ["--rows", "yolo_deepsort_paper", "--yolo-variant", "yolov5s_p2"])
+    with pytest.raises(SystemExit, match="yolov5s_p2_fold2/weights/best.pt is missing"):
+        driver.main()
+    (detectors / "yolov5s_p2_fold2" / "weights").mkdir(parents=True)
+    (detectors / "yolov5s_p2_fold2" / "weights" / "best.pt").write_bytes(b"p")
+    driver.main()
+    piece = json.loads((tmp_path / "wider" / "tracking" / "yolo_deepsort_paper_fold2.json").read_text())
+    assert piece["weights"].endswith("yolov5s_p2_fold2/weights/best.pt")
 
 
 def test_rows_tracked_with_the_folds_own_reid_are_kept_beside_the_shipped_ones(tracked, tmp_path):

@@ -35,6 +35,8 @@ ground-truth pieces from another study tracked on the same data where this one h
         --set objectness detector.score=objectness
     python experiments/detector_cv/track_study.py --study psf_truth --data space_default_psf --table \
         --reference finetune_lr
+    python experiments/detector_cv/track_study.py --study p2_head --folds 2 --yolo-variant yolov5s_p2 \
+        --data space_default_psf
 """
 
 from __future__ import annotations
@@ -90,6 +92,11 @@ def main() -> None:
     parser.add_argument("--folds", type=int, nargs="+", help="required unless --table")
     parser.add_argument("--rows", nargs="+", default=list(ROWS), help="Table 4 rows on detector boxes")
     parser.add_argument("--detectors", type=Path, help="default: outputs/detector_cv/<study>")
+    parser.add_argument(
+        "--yolo-variant",
+        default=DETECTORS["yolo"],
+        help="the run.py variant the yolo_ rows track (default yolov5s; e.g. yolov5s_p2)",
+    )
     parser.add_argument("--gates", action="store_true", help="the paper's settings, one key back at a time")
     parser.add_argument(
         "--set", nargs="+", metavar=("LABEL", "OVERRIDE"), help="a label, then overrides after each row's own"
@@ -134,7 +141,7 @@ def main() -> None:
     def weights_of(row: str, fold: int) -> Path | None:
         if row.split("_")[0] not in DETECTORS:
             return None  # a gt_ row: ground-truth boxes, no detector
-        slug = DETECTORS[row.split("_")[0]]
+        slug = {**DETECTORS, "yolo": args.yolo_variant}[row.split("_")[0]]
         run = args.detectors / f"{slug}_fold{fold}" if args.detectors else cv.run_folder(slug, fold, folder)
         weights = run / "weights" / "best.pt"
         if not weights.is_file():
