@@ -4,7 +4,7 @@ Depth 0.33 and width 0.50 give YOLOv5s: 7,235,389 parameters at 80 classes, 7,02
 `p2=True` adds a fourth detection level at stride 4 (the backbone's stride-4 features joined with the
 stride-8 neck output, as YOLOv5's P2 models do) for targets of a few pixels. The stride-8 to stride-32
 path is left as it is and the new level comes last in the head, so a three-level file loads into the
-first three (`weights_partial`) and the new level starts from its initialisation.
+first three (`spacetrack.engine.pretrained`) and the new level starts from its initialisation.
 `forward` returns the raw head outputs the loss needs; `predict` decodes them into boxes.
 
 Box format of `predict`: (B, N, 5 + num_classes) rows `cx, cy, w, h, objectness, class scores...` in
