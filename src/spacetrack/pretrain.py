@@ -17,7 +17,7 @@ from omegaconf import DictConfig
 from spacetrack import cli
 from spacetrack.data.layout import load_manifest
 from spacetrack.engine.distributed import launched_world
-from spacetrack.engine.pretrained import PRETRAINED, p2_name
+from spacetrack.engine.pretrained import PRETRAINED, pretrained_file
 from spacetrack.export_weights import export_detector
 from spacetrack.train import fit
 
@@ -76,14 +76,12 @@ def run(cfg: DictConfig) -> dict[str, float]:
     if not launched_world().is_main:  # one of several processes that trained together: rank 0 exports
         return result["metrics"]
     gam = cfg.model.gam_position
-    if gam not in PRETRAINED:
+    shipped = pretrained_file(gam, bool(cfg.model.get("p2")))
+    if shipped is None:
         raise ValueError(f"no pretrained file name for gam_position {gam!r} (known: {list(PRETRAINED)})")
     folder = Path(cfg.export_dir)
     folder.mkdir(parents=True, exist_ok=True)
-    name = PRETRAINED[gam].name
-    written = export_detector(
-        result["best"], folder / (p2_name(Path(name)).name if cfg.model.get("p2") else name)
-    )
+    written = export_detector(result["best"], folder / shipped.name)
     print(f"pretrain: wrote {written} ({written.stat().st_size / 1e6:.1f} MB) from {result['best']}")
     return result["metrics"]
 

@@ -29,28 +29,34 @@ HEAD_PREFIX = "detect.m."
 P2_KEYS = ("p2", "anchors")
 
 
+def _adds_p2(found: dict, mine: dict) -> bool:
+    """Whether the model is the file's three-level network with a stride-4 level added."""
+    return bool(mine.get("p2")) and not found.get("p2")
+
+
 def _architecture_changes(found: dict, mine: dict) -> str:
     """The arch keys that differ between a file and a model (class count aside); a model with a stride-4
     level started from a file without one counts only what differs besides that level."""
-    ignore = ("num_classes",)
-    if mine.get("p2") and not found.get("p2"):
-        ignore += P2_KEYS
+    ignore = ("num_classes",) + (P2_KEYS if _adds_p2(found, mine) else ())
     return differences(found, mine, ignore=ignore)
 
 
-def pretrained_files(arch: dict) -> list[Path]:
-    """The files `auto` may start a model of this arch from, the first that exists and fits winning: that
-    of its GAM position (none when there is no such file name), and for a model with a stride-4 level
-    first one made for that level (`yolov5s_p2_pretrained.pt`, what `spacetrack.pretrain` writes for it)."""
-    path = PRETRAINED.get(arch["gam_position"])
-    if path is None:
-        return []
-    return [p2_name(path), path] if arch.get("p2") else [path]
-
-
-def p2_name(path: Path) -> Path:
-    """The file name of a pretrained model with a stride-4 level: `_p2` before `_pretrained`."""
+def pretrained_file(gam_position: str | None, p2: bool = False) -> Path | None:
+    """The pretrained file of a model with this GAM position (None when it has no file name), with a
+    stride-4 level `_p2` before `_pretrained` (`yolov5s_p2_pretrained.pt`, what `spacetrack.pretrain`
+    writes for such a model)."""
+    path = PRETRAINED.get(gam_position)
+    if path is None or not p2:
+        return path
     return path.with_name(path.name.replace("_pretrained", "_p2_pretrained"))
+
+
+def pretrained_files(arch: dict) -> list[Path]:
+    """The files `auto` may start a model of this arch from, the first that exists and fits winning: for
+    a model with a stride-4 level first the one made for that level, then that of its GAM position."""
+    kinds = (True, False) if arch.get("p2") else (False,)
+    files = (pretrained_file(arch["gam_position"], p2) for p2 in kinds)
+    return [path for path in files if path is not None]
 
 
 def resolve_weights(choice: str | None, arch: dict) -> Path | None:
@@ -97,7 +103,7 @@ def load_pretrained(model: YOLOv5, path: str | Path, *, partial: bool = False) -
             f"the head was re-initialised: the weights have {found['num_classes']} classes, "
             f"the dataset {mine['num_classes']}"
         )
-    if mine.get("p2") and not found.get("p2"):
+    if _adds_p2(found, mine):
         notes.append("the stride-4 level is new: it starts from its initialisation")
     if changed:
         notes.append(f"architecture differs ({changed}): the rest keeps its initialisation")

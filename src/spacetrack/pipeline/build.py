@@ -56,7 +56,7 @@ def _model_overrides(tags: dict[str, str]) -> list[str]:
     if tags["enhance"] != "none":
         out.append(f"enhance={tags['enhance']}")
     if tags["head_levels"] == "4":
-        out.append("model.p2=true" if out and out[0].startswith("model=yolov5s_gam") else "model=yolov5s_p2")
+        out.append("model=yolov5s_p2" if tags["gam_position"] == "none" else "model.p2=true")
     return out
 
 
