@@ -209,3 +209,18 @@ def test_a_parked_object_under_a_long_slew_with_a_drifting_shift_estimate_stays_
             dynamics.observe(mover, np.r_[300 + true + [f, 0], 16, 16], estimated, False, camera_moving=True)
         assert parked.dynamic is parked_dynamic
         assert mover.dynamic
+
+
+def test_the_configured_motion_confirm_needs_the_track_filter_and_appearance_for_what_it_confirms():
+    from spacetrack.config import compose_config
+    from spacetrack.pipeline.runner import build_tracker
+
+    def build(*overrides):
+        return build_tracker(compose_config("track", list(overrides)))
+
+    assert build("tracker.motion_confirm=0.3").motion_confirm == 0.3  # reid_min_score 0.3, filter track
+    with pytest.raises(ValueError, match=r"motion_confirm=0.2 is below reid_min_score=0.3"):
+        build("tracker.motion_confirm=0.2")
+    assert build("tracker.motion_confirm=0.2", "reid_min_score=0.2").motion_confirm == 0.2
+    with pytest.raises(ValueError, match="needs each box's motion flag.*dynamic_filter=track"):
+        build("tracker.motion_confirm=0.3", "dynamic_filter=frame")

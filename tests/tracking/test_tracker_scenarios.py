@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from spacetrack.tracking import DeepSort, deepsort
+from spacetrack.tracking.dynamic import TrackDynamics
 
 ORIGINAL = dict(
     max_cosine_distance=0.2,
@@ -315,3 +316,63 @@ def test_motion_rescue_leaves_blobs_that_touch_a_detection_to_it():
     assert b_frames((119, 100, 23, 40)) == list(
         range(2, 9)
     )  # one touching A is A's: B coasts one frame, ends
+
+
+def _faint_mover_and_faint_parked(score=0.35):
+    """A target moving 4 px/frame that the detector scores `score` on every frame, and a parked object
+    at the same score: (frames as `run_scored` takes them, per-frame motion flags: the mover's box is
+    matched by a blob, the parked one's is not)."""
+    frames = [[(100 + 4 * f, 100, 20, 40, 0, score), (400, 300, 20, 40, 1, score)] for f in range(20)]
+    return frames, [np.array([True, False])] * len(frames)
+
+
+def run_flagged(frames, flags, **overrides):
+    """Like `run_scored`, with each frame's per-box motion flags and a track-level motion decision."""
+    tracker = DeepSort(**{**ORIGINAL, "min_confidence": 0.5, **overrides}, dynamics=TrackDynamics())
+    outputs = []
+    for dets, moving in zip(frames, flags, strict=True):
+        tlwh = np.array([d[:4] for d in dets], dtype=float).reshape(-1, 4)
+        feature = np.array([FEATURES[d[4]] for d in dets]).reshape(-1, 4)
+        rows = tracker.step(tlwh, np.array([d[5] for d in dets]), feature, dynamic=moving)
+        outputs.append({int(r[0]): r[1:] for r in rows})
+    return outputs
+
+
+def test_motion_confirm_tracks_a_low_scored_box_that_moves_and_not_one_that_does_not():
+    frames, flags = _faint_mover_and_faint_parked()
+    assert not any(run_flagged(frames, flags))  # below min_confidence 0.5: nothing is tracked
+    out = run_flagged(frames, flags, motion_confirm=0.3)
+    assert all(len(out[f]) == 1 and ids_near(out[f], 100 + 4 * f) for f in range(3, 20))  # the mover only
+    assert not any(ids_near(o, 400) for o in out)  # the parked box at the same score stays out
+    # its floor holds: a mover scored under it is not confirmed, and low_confidence keeps its role
+    assert not any(run_flagged(*_faint_mover_and_faint_parked(score=0.25), motion_confirm=0.3))
+    assert not any(run_flagged(frames, flags, low_confidence=0.3))  # low boxes never start a track
+
+
+def test_motion_confirm_without_motion_flags_is_refused_and_none_changes_nothing():
+    with pytest.raises(
+        ValueError, match="motion_confirm=0.3 needs each box's motion flag.*dynamic_filter=track"
+    ):
+        DeepSort(**{**ORIGINAL, "min_confidence": 0.5, "motion_confirm": 0.3})
+    for bad in (-0.1, True):
+        with pytest.raises(ValueError, match="tracker.motion_confirm must be >= 0 or null"):
+            DeepSort(**{**ORIGINAL, "min_confidence": 0.5, "motion_confirm": bad}, dynamics=TrackDynamics())
+    frames, flags = _faint_mover_and_faint_parked(score=0.9)
+
+    def plain(outputs):
+        return [{k: box.tolist() for k, box in o.items()} for o in outputs]
+
+    reference = plain(run_flagged(frames, flags))
+    assert reference[5]  # both boxes above min_confidence: the mover is tracked either way
+    assert plain(run_flagged(frames, flags, motion_confirm=0.3)) == reference
+
+
+def test_a_confirmed_box_that_no_stage_matches_goes_to_its_track_by_overlap_before_starting_one():
+    # a target tracked at 0.9 (appearance 0) for 10 frames, missed on frame 10, then scored 0.35 with an
+    # appearance the gallery rejects (1): only box overlap ties it to its track, which has gone unmatched
+    frames = [[(100 + 4 * f, 100, 20, 40, 0 if f < 10 else 1, 0.9 if f < 10 else 0.35)] if f != 10 else []
+              for f in range(16)]  # fmt: skip
+    flags = [np.ones(len(dets), bool) for dets in frames]
+    out = run_flagged(frames, flags, motion_confirm=0.3, low_confidence=0.3)
+    assert {k for o in out for k in o} == {1}  # one identity throughout
+    assert all(ids_near(out[f], 100 + 4 * f) == [1] for f in range(11, 16))

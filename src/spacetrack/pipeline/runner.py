@@ -128,6 +128,21 @@ def filter_mode(value: object) -> str:
 def build_tracker(cfg: DictConfig) -> DeepSort:
     """The configured tracker (`tracker`), deciding per track what moves when `dynamic_filter` is track."""
     dynamics = instantiate(cfg.dynamic_track) if filter_mode(cfg.dynamic_filter) == "track" else None
+    confirm = cfg.tracker.get("motion_confirm")
+    if confirm is not None and dynamics is None:
+        raise ValueError(
+            f"tracker.motion_confirm={confirm} needs each box's motion flag, which only dynamic_filter=track "
+            f"passes to the tracker (dynamic_filter is {cfg.dynamic_filter}; null turns motion_confirm off)"
+        )
+    if (
+        confirm is not None
+        and cfg.tracker.get("max_cosine_distance") is not None
+        and confirm < cfg.get("reid_min_score", 0.0)
+    ):
+        raise ValueError(
+            f"tracker.motion_confirm={confirm} is below reid_min_score={cfg.reid_min_score}: the boxes it "
+            "confirms would reach the tracker with no appearance; set reid_min_score at or below it"
+        )
     return instantiate(cfg.tracker, dynamics=dynamics)
 
 

@@ -61,6 +61,14 @@ class DeepSort:
         detector misses for a few frames while the motion stage still sees it keeps its track on the
         blob's box. A blob adds no appearance feature and no class vote, and starts no track.
         False: blobs only flag detections dynamic.
+    motion_confirm: beyond the reference, a detection scoring from this up to `min_confidence` whose box a
+        moving blob matched (its `dynamic` flag passed to `step`) counts as a kept one: it matches, feeds
+        appearance and may start a track, as a detection at `min_confidence` does. A faint target the
+        detector scores low but the motion stage sees move is tracked; a low score on what does not move
+        (a star, a parked object, a part lit alone beside its moving whole when no blob matches it) stays
+        below. One the matching stages leave unmatched is first offered to confirmed tracks with the
+        low-scored boxes, as it would have been without the floor. Needs the per-box flags of the
+        track-level motion decision (`dynamics`). None: the reference's single floor.
     """
 
     def __init__(
@@ -84,9 +92,18 @@ class DeepSort:
         occluded_area: float | None = None,
         low_confidence: float | None = None,
         motion_rescue: bool = False,
+        motion_confirm: float | None = None,
     ) -> None:
         if low_confidence is not None and not low_confidence >= 0.0:
             raise ValueError(f"tracker.low_confidence must be >= 0 or null, got {low_confidence}")
+        if motion_confirm is not None:
+            if isinstance(motion_confirm, bool) or not motion_confirm >= 0.0:
+                raise ValueError(f"tracker.motion_confirm must be >= 0 or null, got {motion_confirm!r}")
+            if dynamics is None:
+                raise ValueError(
+                    f"tracker.motion_confirm={motion_confirm} needs each box's motion flag, which only "
+                    "dynamic_filter=track passes to the tracker (null turns it off)"
+                )
         metric = None
         if max_cosine_distance is not None:
             metric = NearestNeighborDistanceMetric(
@@ -109,6 +126,7 @@ class DeepSort:
         self.min_confidence = min_confidence
         self.low_confidence = low_confidence
         self.motion_rescue = bool(motion_rescue)
+        self.motion_confirm = None if motion_confirm is None else float(motion_confirm)
         self.nms_max_overlap = nms_max_overlap
         self.min_detection_height = min_detection_height
 
@@ -130,7 +148,8 @@ class DeepSort:
     ) -> np.ndarray:
         """Track one frame of detections (boxes `tlwh` (N, 4) pixels, confidences (N,), features (N, D)).
 
-        dynamic: (N,) bool, whether a motion blob matched each box (the evidence of `dynamics`; None: all).
+        dynamic: (N,) bool, whether a motion blob matched each box (the evidence of `dynamics` and of
+            `motion_confirm`; None: all, and `motion_confirm` confirms nothing).
         image: the frame (RGB or grey uint8), for `camera_motion`; None applies no shift.
         classes: (N,) the detector's class index of each box, for each track's class vote (`class_votes`);
             None: unknown.
@@ -155,10 +174,16 @@ class DeepSort:
                 None if classes is None else classes[keep],
             )
 
-        keep = self._kept(tlwh, confidence, self.min_confidence)
+        eligible = confidence >= self.min_confidence
+        floor = self.min_confidence
+        if self.motion_confirm is not None and dynamic is not None:
+            eligible |= dynamic & (confidence >= self.motion_confirm)
+            floor = min(floor, self.motion_confirm)
+        # NMS among the eligible ones by their own scores
+        keep = self._kept(tlwh, np.where(eligible, confidence, -np.inf), floor)
         low = None
         if self.low_confidence is not None:
-            under = np.where(confidence < self.min_confidence, confidence, -np.inf)  # the kept ones left out
+            under = np.where(eligible, -np.inf, confidence)  # the kept ones left out
             below = self._kept(tlwh, under, self.low_confidence)
             duplicate = iou_matrix(tlwh[below], tlwh[keep]).max(axis=1, initial=0.0) >= LOW_DUPLICATE_IOU
             low = chosen(below[~duplicate])
@@ -173,6 +198,7 @@ class DeepSort:
             camera_moving=self.camera.moving,
             frame_size=None if image is None else (image.shape[1], image.shape[0]),
             low=low,
+            weak=None if self.motion_confirm is None else confidence[keep] < self.min_confidence,
         )
         return track_rows(self.tracker.outputs())
 

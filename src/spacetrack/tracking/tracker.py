@@ -121,6 +121,7 @@ class Tracker:
         camera_moving: bool = False,
         frame_size: tuple[int, int] | None = None,
         low: Detections | None = None,
+        weak: np.ndarray | None = None,
     ) -> None:
         """Associate this frame's `detections`, update matched tracks, age the others, start new ones.
 
@@ -132,10 +133,20 @@ class Tracker:
         tracks that no stage matched (ByteTrack's second association: a target the detector scores low for
         a few frames keeps its track instead of leaving a gap); they add no appearance feature and start
         no track.
+        weak: (N,) bool over `detections`, those kept below the usual floor (`DeepSort`'s motion_confirm):
+        one the first stages leave unmatched joins `low` in the last association before it may start a
+        track, so that a box the low-scored ones' rule would have given to a confirmed track still goes
+        to it.
         """
         self._camera_moving, self._frame_size = camera_moving, frame_size
         matches, unmatched_tracks, unmatched_detections = self._match(detections)
         low_matches: list[tuple[int, int]] = []
+        if weak is not None:
+            offered = [d for d in unmatched_detections if weak[d]]
+            if offered:
+                extra = detections.subset(np.array(offered))
+                low = extra if low is None else low.concat(extra)
+                first_offered = len(low) - len(offered)
         if low is not None and len(low):
             confirmed = [k for k in unmatched_tracks if self.tracks[k].is_confirmed()]
             low_matches, _, _ = min_cost_matching(
@@ -146,6 +157,9 @@ class Tracker:
             )
             taken = {k for k, _ in low_matches}
             unmatched_tracks = [k for k in unmatched_tracks if k not in taken]
+            if weak is not None and offered:
+                given = {offered[d - first_offered] for _, d in low_matches if d >= first_offered}
+                unmatched_detections = [d for d in unmatched_detections if d not in given]
         self._update_matched(matches, detections, offset, features=True)
         self._update_matched(low_matches, low, offset, features=False)
         for i in unmatched_tracks:
