@@ -138,10 +138,12 @@ def main() -> None:
             )
     cv = _script("detector_cv_run", "experiments/detector_cv/run.py")
 
+    slugs = {**DETECTORS, "yolo": args.yolo_variant}  # a row's prefix -> the run.py variant it tracks
+
     def weights_of(row: str, fold: int) -> Path | None:
-        if row.split("_")[0] not in DETECTORS:
+        if row.split("_")[0] not in slugs:
             return None  # a gt_ row: ground-truth boxes, no detector
-        slug = {**DETECTORS, "yolo": args.yolo_variant}[row.split("_")[0]]
+        slug = slugs[row.split("_")[0]]
         run = args.detectors / f"{slug}_fold{fold}" if args.detectors else cv.run_folder(slug, fold, folder)
         weights = run / "weights" / "best.pt"
         if not weights.is_file():

@@ -141,12 +141,11 @@ class Tracker:
         self._camera_moving, self._frame_size = camera_moving, frame_size
         matches, unmatched_tracks, unmatched_detections = self._match(detections)
         low_matches: list[tuple[int, int]] = []
-        if weak is not None:
-            offered = [d for d in unmatched_detections if weak[d]]
-            if offered:
-                extra = detections.subset(np.array(offered))
-                low = extra if low is None else low.concat(extra)
-                first_offered = len(low) - len(offered)
+        offered = [] if weak is None else [d for d in unmatched_detections if weak[d]]
+        first_offered = 0 if low is None else len(low)  # their positions in `low` from here
+        if offered:
+            extra = detections.subset(np.array(offered))
+            low = extra if low is None else low.concat(extra)
         if low is not None and len(low):
             confirmed = [k for k in unmatched_tracks if self.tracks[k].is_confirmed()]
             low_matches, _, _ = min_cost_matching(
@@ -157,7 +156,7 @@ class Tracker:
             )
             taken = {k for k, _ in low_matches}
             unmatched_tracks = [k for k in unmatched_tracks if k not in taken]
-            if weak is not None and offered:
+            if offered:
                 given = {offered[d - first_offered] for _, d in low_matches if d >= first_offered}
                 unmatched_detections = [d for d in unmatched_detections if d not in given]
         self._update_matched(matches, detections, offset, features=True)
