@@ -1,16 +1,19 @@
 """Detector training throughput: float32 against bfloat16 autocast, NCHW against channels-last (NHWC)
-memory layout, and decoded-frame crops against a JPEG decode per sample, in one run -> reports/train.json
-and reports/train.md.
+memory layout, the whole network trained against a frozen backbone (`train.freeze`), and decoded-frame
+crops against a JPEG decode per sample, in one run -> reports/train.json and reports/train.md.
 
     python benchmarks/bench_train.py                 # YOLOv5s, 256-px crops, batch 8, 1 and 2 threads
     python benchmarks/bench_train.py --steps 3 --threads 1
+    python benchmarks/bench_train.py --precisions float32 --report train_no_bf16   # -> reports/train_no_bf16.*
 
 Training step: forward, YOLO loss, backward and SGD step on a batch of real crops (random ones where
 the dataset is not built). bfloat16 runs through `torch.autocast("cpu", dtype=torch.bfloat16)`; the
 report says whether this CPU computes bfloat16 natively (`native_bfloat16`, as the trainer detects it:
 only then does the trainer use it). Channels-last puts the model and each batch in NHWC layout, as the
-trainer does with `train.trainer.channels_last: true` (the default). Steps of every contender alternate,
-so load changes hit all alike.
+trainer does with `train.trainer.channels_last: true` (the default). A frozen backbone (`--freeze`: the
+first k blocks, a NHWC row for each k) is trained as `train.freeze=k` trains it: backpropagation stops
+at the first trained block. The last column is each row's step time over the first precision's NCHW
+row (float32 unless `--precisions` leaves it out). Steps of every contender alternate, so load changes hit all alike.
 Data: samples per second of `CropDataset` reading the `FrameStore` cache against the whole-frame
 `YoloDataset` that decodes the JPEG (and letterboxes it) for every sample.
 """
@@ -36,6 +39,7 @@ from spacetrack.engine.precision import native_bfloat16
 from spacetrack.enhance import DwtHsvEnhancer
 from spacetrack.models.yolo import YOLOv5
 
+PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}  # autocast dtype (None: none)
 AUGMENT = {"hue": 5, "saturation": 30, "value": 30, "fliplr": 0.5, "flipud": 0.5, "scale": 0.25,
            "translate": 0.0, "fill": 0}  # fmt: skip
 
@@ -50,12 +54,18 @@ def crop_data(root: Path, size: int) -> CropDataset | None:
 
 
 def training_step(
-    size: int, batch: int, data: CropDataset | None, dtype: torch.dtype | None, channels_last: bool = False
+    size: int,
+    batch: int,
+    data: CropDataset | None,
+    dtype: torch.dtype | None,
+    channels_last: bool = False,
+    freeze: int = 0,
 ):
     """A callable running one training step of a fresh YOLOv5s in `dtype` autocast (None: float32), in
-    channels-last layout or not."""
+    channels-last layout or not, its first `freeze` backbone blocks frozen."""
     torch.manual_seed(0)
     model = YOLOv5(num_classes=3).train()
+    model.freeze_backbone(freeze)
     layout = torch.channels_last if channels_last else torch.contiguous_format
     model.to(memory_format=layout)
     loss_fn = YoloLoss(anchors=model.detect.anchors, strides=model.stride, num_classes=3, image_size=size)
@@ -114,7 +124,16 @@ def main() -> None:
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--data", type=Path, default=Path("data/space_default"))
     parser.add_argument("--samples", type=int, default=100, help="data samples timed per contender")
+    parser.add_argument(
+        "--freeze", type=int, nargs="*", default=[2, 5], help="backbone blocks frozen, a row each"
+    )
+    parser.add_argument("--precisions", nargs="+", choices=list(PRECISIONS), default=list(PRECISIONS))
+    parser.add_argument("--report", default="train", help="reports/<name>.json and .md")
     args = parser.parse_args()
+    if not args.report.isidentifier():
+        parser.error(
+            f"--report {args.report!r}: a plain name (letters, digits, underscores), written under reports/"
+        )
     crops = crop_data(args.data, args.size)
     rows, record = (
         [],
@@ -122,21 +141,27 @@ def main() -> None:
     )
     for threads in tqdm(args.threads, desc="thread counts", unit="setting"):
         torch.set_num_threads(threads)
+        settings = [(layout, 0) for layout in ("NCHW", "NHWC")] + [("NHWC", k) for k in args.freeze if k]
         calls = {
-            f"{precision} {layout}": training_step(args.size, args.batch, crops, dtype, layout == "NHWC")
-            for precision, dtype in (("float32", None), ("bfloat16", torch.bfloat16))
-            for layout in ("NCHW", "NHWC")
+            f"{precision} {layout} {freeze}": training_step(
+                args.size, args.batch, crops, dtype, layout == "NHWC", freeze
+            )
+            for precision, dtype in PRECISIONS.items()
+            if precision in args.precisions
+            for layout, freeze in settings
         }
         wall, _ = interleaved_samples(calls, repeats=args.steps)
-        fp32 = summarize(wall["float32 NCHW"], scale=1.0)["median"]
+        fp32 = summarize(wall[f"{args.precisions[0]} NCHW 0"], scale=1.0)["median"]
         for name, samples in wall.items():
-            precision, layout = name.split()
+            precision, layout, freeze = name.split()
             median = summarize(samples, scale=1.0)["median"]
-            entry = {"precision": precision, "layout": layout, "threads": threads,
+            entry = {"precision": precision, "layout": layout, "frozen_blocks": int(freeze), "threads": threads,
                      "img_per_s": args.batch / median, "step_s": summarize(samples, scale=1.0),
                      "x_float32_time": median / fp32}  # fmt: skip
             record["rows"].append(entry)
-            rows.append([precision, layout, threads, entry["img_per_s"], median, entry["x_float32_time"]])
+            rows.append(
+                [precision, layout, freeze, threads, entry["img_per_s"], median, entry["x_float32_time"]]
+            )
     data = data_rates(args.data, args.size, samples=args.samples)
     record["data"] = [{"source": r[0], "samples_per_s": r[1]} for r in data]
     md = (
@@ -145,9 +170,19 @@ def main() -> None:
         f"SGD step, medians of {args.steps} steps per row, contenders alternating. This CPU computes "
         f"bfloat16 natively: **{'yes' if record['native_bfloat16'] else 'no'}** (the trainer uses "
         "bfloat16 only where it does; elsewhere it is emulated). Layout NHWC: channels-last, the "
-        "trainer's default.\n\n"
+        "trainer's default. Frozen: backbone blocks not trained (`train.freeze`; 0: the whole network "
+        "trains, the default).\n\n"
         + markdown_table(
-            ["precision", "layout", "threads", "img/s", "s per step", "x float32 NCHW time"], rows
+            [
+                "precision",
+                "layout",
+                "frozen",
+                "threads",
+                "img/s",
+                "s per step",
+                f"x {args.precisions[0]} NCHW time",
+            ],
+            rows,
         )
     )
     if data:
@@ -155,7 +190,7 @@ def main() -> None:
             f"\nData pipeline, one process, {args.samples} random samples (second pass):\n\n"
             + markdown_table(["source", "samples/s"], data)
         )
-    json_path, md_path = write_report("train", record, md)
+    json_path, md_path = write_report(args.report, record, md)
     print(md)
     print(f"spacetrack bench_train: files: {json_path} {md_path}")
 

@@ -78,6 +78,7 @@ ADDED_LATER = {
     "train.augment.exposure": "0.0",
     "train.augment.exposure_gain": "[0.15, 3.0]",
     "train.crops.small_bias": "0.0",
+    "train.freeze": "0",
 }
 
 

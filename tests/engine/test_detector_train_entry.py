@@ -232,3 +232,45 @@ def test_reexposure_comes_before_an_enhancement(tiny_dataset, tmp_path, enhance)
         assert val_set.reexposure is None
     image, _ = train_set[0]
     assert image.shape[:2] == (cfg.train.image_size, cfg.train.image_size)
+
+
+def test_a_frozen_backbone_ends_the_fine_tuning_as_the_pretrained_file_has_it(tiny_dataset, tmp_path, capsys):
+    import torch
+
+    from spacetrack.export_weights import _half
+    from spacetrack.models.yolo import YOLOv5
+
+    torch.manual_seed(1)
+    start = YOLOv5(num_classes=3, width_multiple=0.125)
+    torch.save({"arch": start.arch, "ema": _half(start.state_dict())}, tmp_path / "pre.pt")
+    pre = torch.load(tmp_path / "pre.pt")["ema"]
+    common = ("fold=3", "model.width_multiple=0.125", f"weights={tmp_path / 'pre.pt'}")
+    run(config(tiny_dataset, tmp_path, *common, "train.freeze=3"))
+    assert "stem, stage2, stage3 frozen (train.freeze=3)" in capsys.readouterr().out
+    last = torch.load(tmp_path / "run" / "weights" / "last.pt")
+    params = [name for name, _ in start.named_parameters()]
+    frozen = [n for n in params if n.startswith(("stem.", "stage2.", "stage3."))]
+    trained = [n for n in params if n not in frozen]
+    for state in (last["model"], last["ema"]):
+        bad = [
+            (n, (state[n] - pre[n].float()).abs().max().item())
+            for n in frozen
+            if not torch.equal(state[n], pre[n].float())
+        ]
+        assert not bad, bad[:4]
+        assert sum(not torch.equal(state[n], pre[n].float()) for n in trained) > len(trained) // 2
+    # the BatchNorm statistics of the frozen blocks follow the data, as in YOLOv5
+    assert not torch.equal(last["model"]["stem.bn.running_mean"], pre["stem.bn.running_mean"].float())
+    with pytest.raises(ValueError, match="freeze: checkpoint 3, configured 5"):
+        run(
+            config(
+                tiny_dataset,
+                tmp_path,
+                *common,
+                "train.freeze=5",
+                f"resume={tmp_path / 'run/weights/last.pt'}",
+            )
+        )
+    with pytest.raises(ValueError, match="freeze: expected 0-5 backbone stages .*got 6"):
+        run(config(tiny_dataset, tmp_path / "six", *common, "train.freeze=6"))
+    assert not (tmp_path / "six").exists()

@@ -12,7 +12,7 @@ from torch.utils.data import RandomSampler
 from detector_helpers import tiny_model
 from spacetrack.config import compose_config
 from spacetrack.engine import distributed
-from spacetrack.engine.checkpoint import checkpoint_settings
+from spacetrack.engine.checkpoint import checkpoint_settings, settings_differences
 from spacetrack.engine.distributed import World, batches_per_epoch, shard_of_batches
 
 TWO = [World(rank=0, size=2), World(rank=1, size=2)]
@@ -122,6 +122,11 @@ def test_the_slurm_preset_starts_a_task_per_gpu():
     assert cfg.hydra.launcher.tasks_per_node == 4 and cfg.hydra.launcher.nodes == 1
 
 
-def test_checkpoints_older_than_sync_bn_resume_as_trained_without_it():
-    assert checkpoint_settings({"settings": {"lr0": 0.01}}) == {"sync_bn": False, "lr0": 0.01}
-    assert checkpoint_settings({"settings": {"sync_bn": True}}) == {"sync_bn": True}
+def test_checkpoints_older_than_sync_bn_and_freeze_resume_as_trained_without_them():
+    older = {"sync_bn": False, "freeze": 0, "lr0": 0.01}
+    assert checkpoint_settings({"settings": {"lr0": 0.01}}) == older
+    assert checkpoint_settings({"settings": {"sync_bn": True, "freeze": 5}}) == {"sync_bn": True, "freeze": 5}
+    # either side may lack a later setting: it counts as its earlier value
+    assert settings_differences({"settings": {"lr0": 0.01}}, {"lr0": 0.01, "freeze": 0}) == ""
+    assert settings_differences({"settings": {"lr0": 0.01, "freeze": 0}}, {"lr0": 0.01}) == ""
+    assert settings_differences({"settings": {"freeze": 3}}, {}) == "freeze: checkpoint 3, configured 0"

@@ -80,3 +80,35 @@ def test_the_stride_4_level_comes_last_and_leaves_the_three_level_path_as_it_is(
 def test_anchor_levels_must_match_the_head():
     with pytest.raises(ValueError, match="3 anchor levels for a 4-level head"):
         YOLOv5(num_classes=1, p2=True, anchors=((10, 13, 16, 30, 33, 23),) * 3)
+
+
+@pytest.mark.parametrize("stages", [-1, 6, 2.5, True, "5"])
+def test_freeze_outside_the_backbone_stages_is_refused(stages):
+    with pytest.raises(ValueError, match=rf"freeze: expected 0-5 backbone stages .*got {stages!r}"):
+        YOLOv5(num_classes=3, width_multiple=0.125).freeze_backbone(stages)
+
+
+@pytest.mark.parametrize("gam_position", [None, "after_sppf"])
+def test_frozen_backbone_blocks_keep_their_weights_and_backpropagation_stops_at_them(gam_position):
+    from spacetrack.engine.optim import build_optimizer
+
+    torch.manual_seed(0)
+    model = YOLOv5(num_classes=3, width_multiple=0.125, gam_position=gam_position)
+    assert model.freeze_backbone(0) == [] and all(p.requires_grad for p in model.parameters())
+    assert model.freeze_backbone(2) == ["stem", "stage2"]
+    assert model.freeze_backbone(5) == ["stem", "stage2", "stage3", "stage4", "stage5"]
+    frozen = {n for n, _ in model.named_parameters() if n.split(".")[0].startswith(("stem", "stage"))}
+    assert frozen and {n for n, p in model.named_parameters() if not p.requires_grad} == frozen
+    if gam_position:  # the GAM block sits in stage5: frozen with it
+        gam = {n for n, _ in model.named_parameters() if n.startswith("stage5.4.")}
+        assert gam and gam <= frozen
+    before = {n: p.detach().clone() for n, p in model.named_parameters()}
+    optimizer = build_optimizer(model, lr0=0.1, momentum=0.9, weight_decay=5e-4)
+    model.train()
+    loss = sum(level.square().mean() for level in model(torch.rand(2, 3, 64, 64)))
+    loss.backward()
+    assert all(p.grad is None for n, p in model.named_parameters() if n in frozen)
+    optimizer.step()
+    for name, p in model.named_parameters():
+        moved = not torch.equal(p.detach(), before[name])
+        assert moved == (name not in frozen), name

@@ -64,13 +64,20 @@ def load_detector(path: str | Path) -> YOLOv5:
 # Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker; the
 # memory layout of the activations changes the speed, not what is learned (only the order of sums).
 RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes", "channels_last")
-# Trainer keywords newer than some checkpoints, with the value those checkpoints were trained with.
-LATER_SETTINGS = {"sync_bn": False}
+# Settings newer than some checkpoints (trainer keywords and run settings), with the value those
+# checkpoints were trained with.
+LATER_SETTINGS = {"sync_bn": False, "freeze": 0}
 
 
 def checkpoint_settings(state: dict[str, Any]) -> dict[str, Any]:
     """The settings a checkpoint was trained with, `LATER_SETTINGS` filled in for older checkpoints."""
     return {**LATER_SETTINGS, **state["settings"]}
+
+
+def settings_differences(state: dict[str, Any], settings: dict[str, Any]) -> str:
+    """`differences` between a checkpoint's settings and a training's, `RESULT_NEUTRAL` aside; a setting
+    of `LATER_SETTINGS` that either side lacks counts as its earlier value."""
+    return differences(checkpoint_settings(state), {**LATER_SETTINGS, **settings}, ignore=RESULT_NEUTRAL)
 
 
 def unfinished_checkpoint(
@@ -87,9 +94,7 @@ def unfinished_checkpoint(
             continue
         if not isinstance(state, dict) or not {"arch", "settings", "epoch"} <= set(state):
             continue
-        if differences(state["arch"], arch) or differences(
-            checkpoint_settings(state), settings, ignore=RESULT_NEUTRAL
-        ):
+        if differences(state["arch"], arch) or settings_differences(state, settings):
             continue
         if state["epoch"] + 1 < settings["epochs"]:
             return path

@@ -83,6 +83,9 @@ class ModelEMA:
         self.updates += 1
         d = self.decay * (1 - math.exp(-self.updates / self.tau))
         source = model.state_dict()
+        frozen = {name for name, p in model.named_parameters() if not p.requires_grad}
         for name, value in self.module.state_dict().items():
-            if value.dtype.is_floating_point:
+            if name in frozen:  # exactly the weights a frozen block keeps (an average would round them)
+                value.copy_(source[name])
+            elif value.dtype.is_floating_point:
                 value.mul_(d).add_(source[name].detach(), alpha=1 - d)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import nn
 
-from spacetrack.engine.checkpoint import RESULT_NEUTRAL, checkpoint_settings, differences, load_checkpoint
+from spacetrack.engine.checkpoint import load_checkpoint, settings_differences
 from spacetrack.engine.distributed import World, distribute_model, sum_across
 from spacetrack.engine.optim import ModelEMA, build_optimizer
 
@@ -75,7 +75,7 @@ class RunState:
         """Continue from the checkpoint at `path`; refuse it when its settings differ. One of another
         number of processes is taken: the batches and their order do not depend on it."""
         state = load_checkpoint(path, arch=self.model.arch)
-        changed = differences(checkpoint_settings(state), self.settings, ignore=RESULT_NEUTRAL)
+        changed = settings_differences(state, self.settings)
         if changed:
             raise ValueError(f"cannot resume {path} with other settings: {changed}")
         before = state.get("world_size", 1)

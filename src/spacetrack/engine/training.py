@@ -161,6 +161,11 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     enhancer = instantiate(cfg.enhance)
 
     model, loss_fn = _model_and_loss(cfg, len(class_names))
+    frozen = model.freeze_backbone(int(cfg.train.freeze))
+    if frozen:
+        trained = sum(p.numel() for p in model.parameters() if p.requires_grad)
+        print(f"fold {cfg.fold}: {', '.join(frozen)} frozen (train.freeze={cfg.train.freeze}); "
+              f"{trained:,} of {count_parameters(model):,} parameters train", flush=True)  # fmt: skip
     weights = resolve_weights(cfg.weights, model.arch)
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
@@ -174,6 +179,8 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
         print(f"fold {cfg.fold}: " + load_pretrained(model, weights, partial=cfg.weights_partial), flush=True)
     elif resume is None:
         print(f"fold {cfg.fold}: training from scratch (weights={cfg.weights})", flush=True)
+        if frozen:
+            print(f"fold {cfg.fold}: warning: the frozen blocks keep their random initialisation", flush=True)
     gam = model.arch["gam_position"] or "none"
     levels = str(model.detect.num_levels)
     name = ("yolov5s" if gam == "none" else "yolov5s_gam") + ("_p2" if levels == "4" else "")

@@ -94,6 +94,9 @@ class Detect(nn.Module):
         return torch.cat(out, dim=1)
 
 
+BACKBONE = ("stem", "stage2", "stage3", "stage4", "stage5")  # the backbone's blocks, input first
+
+
 class YOLOv5(nn.Module):
     """YOLOv5 backbone (CSP-Darknet with SPPF), PAN neck and Detect head; GAM inserted where configured.
 
@@ -175,6 +178,20 @@ class YOLOv5(nn.Module):
     @property
     def stride(self) -> torch.Tensor:
         return self.detect.stride
+
+    def freeze_backbone(self, stages: int) -> list[str]:
+        """Stop training the first `stages` blocks of the backbone (`BACKBONE`, 0-5; 5: all of it with
+        its GAM, YOLOv5's `--freeze 10`): their weights keep their values and get no gradient, so
+        backpropagation stops where they end. Their BatchNorm statistics still follow the data in
+        training mode, as in YOLOv5. Returns the names of the frozen blocks."""
+        if isinstance(stages, bool) or not isinstance(stages, int) or not 0 <= stages <= len(BACKBONE):
+            raise ValueError(
+                f"freeze: expected 0-{len(BACKBONE)} backbone stages ({', '.join(BACKBONE)}), got {stages!r}"
+            )
+        for name in BACKBONE[:stages]:
+            for parameter in getattr(self, name).parameters():
+                parameter.requires_grad_(False)
+        return list(BACKBONE[:stages])
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         """Raw head outputs per level (see Detect.forward)."""
