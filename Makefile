@@ -142,7 +142,7 @@ cv: ## the whole nine-fold study: cv-detector, cv-reid, then track-cv (DETECTOR_
 cv-detector: $(STAMP) $(DEFAULT_DATA)/manifest.json ## nine-fold cross-validation of the detector (Hydra multirun, one MLflow parent run)
 	$(PY) -m spacetrack.train -m fold=0,1,2,3,4,5,6,7,8 $(ARGS)
 
-bench-train: $(STAMP) ## detector training img/s: float32 against bfloat16, cached crops against per-sample decoding -> reports/train.json
+bench-train: $(STAMP) ## detector training img/s: float32 against bfloat16, a frozen backbone (train.freeze), cached crops against per-sample decoding -> reports/train.json
 	$(PY) benchmarks/bench_train.py $(ARGS)
 
 # The reference YOLOv5s both detector benchmarks time against: the registry's yolov5 package (ultralytics

@@ -271,6 +271,7 @@ def test_a_frozen_backbone_ends_the_fine_tuning_as_the_pretrained_file_has_it(ti
                 f"resume={tmp_path / 'run/weights/last.pt'}",
             )
         )
-    with pytest.raises(ValueError, match="freeze: expected 0-5 backbone stages .*got 6"):
-        run(config(tiny_dataset, tmp_path / "six", *common, "train.freeze=6"))
-    assert not (tmp_path / "six").exists()
+    for bad in ("6", "2.5", "true"):
+        with pytest.raises(ValueError, match=f"freeze: expected 0-5 backbone stages .*got {bad.title()}"):
+            run(config(tiny_dataset, tmp_path / "bad", *common, f"train.freeze={bad}"))
+        assert not (tmp_path / "bad").exists()

@@ -161,7 +161,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     enhancer = instantiate(cfg.enhance)
 
     model, loss_fn = _model_and_loss(cfg, len(class_names))
-    frozen = model.freeze_backbone(int(cfg.train.freeze))
+    frozen = model.freeze_backbone(cfg.train.freeze)
     if frozen:
         trained = sum(p.numel() for p in model.parameters() if p.requires_grad)
         print(f"fold {cfg.fold}: {', '.join(frozen)} frozen (train.freeze={cfg.train.freeze}); "
