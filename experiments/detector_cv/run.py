@@ -36,6 +36,7 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf, open_dict
 from torch.utils.data import DataLoader
 
+from spacetrack.cli import shown_path
 from spacetrack.config import compose_config, resolved_dict
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import load_manifest, split_sequences
@@ -207,7 +208,7 @@ def piece(slug: str, fold: int, overrides: list[str], frame_stride: int, out: Pa
     atomic_write_text(out / "configs" / f"{slug}_fold{fold}.yaml", recorded_config(cfg))
     if start_only:
         start = start_weights(cfg)
-        return {"run_id": None, "best_epoch": None, "start_only": True, "start": str(start),
+        return {"run_id": None, "best_epoch": None, "start_only": True, "start": shown_path(start),
                 "start_hash": file_hash(start), **score(cfg, start, frame_stride)}  # fmt: skip
     found = matching_run(cfg)
     if found is None:

@@ -75,6 +75,9 @@ class ModelEMA:
         self.decay = decay
         self.tau = tau
         self.updates = updates
+        # weights the model does not train (frozen blocks): the copy holds them already, and averaging
+        # them would only round them
+        self.fixed = {name for name, p in model.named_parameters() if not p.requires_grad}
         for p in self.module.parameters():
             p.requires_grad_(False)
 
@@ -83,9 +86,6 @@ class ModelEMA:
         self.updates += 1
         d = self.decay * (1 - math.exp(-self.updates / self.tau))
         source = model.state_dict()
-        frozen = {name for name, p in model.named_parameters() if not p.requires_grad}
         for name, value in self.module.state_dict().items():
-            if name in frozen:  # exactly the weights a frozen block keeps (an average would round them)
-                value.copy_(source[name])
-            elif value.dtype.is_floating_point:
+            if name not in self.fixed and value.dtype.is_floating_point:
                 value.mul_(d).add_(source[name].detach(), alpha=1 - d)
