@@ -4,11 +4,12 @@ import os
 import mlflow
 import pytest
 from hydra.utils import instantiate
-from omegaconf import open_dict
+from omegaconf import OmegaConf, open_dict
 
 from spacetrack.config import compose_config
 from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.engine import trainer as trainer_module
+from spacetrack.engine import training as training_module
 from spacetrack.engine.cross_validation import PARENT_ENV, CrossValidationCallback
 from spacetrack.engine.training import build_datasets
 from spacetrack.train import run
@@ -275,3 +276,25 @@ def test_a_frozen_backbone_ends_the_fine_tuning_as_the_pretrained_file_has_it(ti
         with pytest.raises(ValueError, match=f"freeze: expected 0-5 backbone stages .*got {bad.title()}"):
             run(config(tiny_dataset, tmp_path / "bad", *common, f"train.freeze={bad}"))
         assert not (tmp_path / "bad").exists()
+
+
+def test_the_float32_profile_is_the_cpu_profile_frozen_and_shortened():
+    default = OmegaConf.to_container(compose_config("train", ["logger=none"]).train)
+    float32 = OmegaConf.to_container(compose_config("train", ["logger=none", "train=cpu_float32"]).train)
+    assert (float32["freeze"], float32["trainer"]["epochs"]) == (2, 8)
+    assert (default["freeze"], default["trainer"]["epochs"]) == (0, 16)
+    for profile in (default, float32):
+        del profile["freeze"], profile["trainer"]["epochs"]
+    assert float32 == default  # nothing else differs: same crops, rates, augmentation
+
+
+def test_a_float32_cpu_on_the_default_profile_is_pointed_to_the_float32_one(monkeypatch):
+    monkeypatch.setattr(training_module, "native_bfloat16", lambda: False)
+    hint = training_module.float32_hint("default", amp=True, device="cpu")
+    assert hint is not None and "train=cpu_float32" in hint
+    assert training_module.float32_hint("cpu_float32", amp=True, device="cpu") is None
+    assert training_module.float32_hint("default", amp=False, device="cpu") is None  # float32 chosen
+    assert training_module.float32_hint("default", amp=True, device="cuda") is None
+    assert training_module.float32_hint(None, amp=True, device="cpu") is None  # not a Hydra run
+    monkeypatch.setattr(training_module, "native_bfloat16", lambda: True)
+    assert training_module.float32_hint("default", amp=True, device="cpu") is None

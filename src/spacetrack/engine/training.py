@@ -16,6 +16,7 @@ from functools import partial
 from pathlib import Path
 
 import torch
+from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -29,6 +30,7 @@ from spacetrack.engine.checkpoint import peek_checkpoint, resume_choice, unfinis
 from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_confusion_matrix, plot_pr_curves, prediction_grid
+from spacetrack.engine.precision import native_bfloat16
 from spacetrack.engine.pretrained import load_pretrained, resolve_weights
 from spacetrack.engine.trainer import Trainer
 from spacetrack.io import file_hash
@@ -169,6 +171,9 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     weights = resolve_weights(cfg.weights, model.arch)
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
+    hint = float32_hint(_profile(), bool(cfg.train.trainer.amp), str(cfg.train.trainer.device))
+    if hint and world.is_main:
+        print(f"fold {cfg.fold}: {hint}", flush=True)
     content = manifest.get("content_hash")
     run_settings = _run_settings(cfg, weights) | {"data_content": content}
     resume = broadcast_object(
@@ -188,6 +193,25 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
             "enhance": enhancer.name, "data_content": str(content)}  # fmt: skip
     return _Fold(
         model, loss_fn, train_set, val_set, trainer, run_settings, resume, out_dir, class_names, tags
+    )
+
+
+def _profile() -> str | None:
+    """The `train=` profile Hydra composed (None outside a Hydra run)."""
+    if not HydraConfig.initialized():
+        return None
+    return HydraConfig.get().runtime.choices.get("train")
+
+
+def float32_hint(profile: str | None, amp: bool, device: str) -> str | None:
+    """A line for a CPU training in float32 (no native bfloat16) with the default profile: where the
+    profile that fits the 30-minute budget there is; None elsewhere."""
+    on_cpu = device == "cpu" or (device == "auto" and not torch.cuda.is_available())
+    if profile != "default" or not (amp and on_cpu) or native_bfloat16():
+        return None
+    return (
+        "this CPU has no native bfloat16, so steps run in float32 at about half the rate and a fold "
+        "takes about an hour on two cores; train=cpu_float32 fits 30 minutes (docs/training.md)"
     )
 
 
