@@ -289,12 +289,17 @@ def test_the_float32_profile_is_the_cpu_profile_frozen_and_shortened():
 
 
 def test_a_float32_cpu_on_the_default_profile_is_pointed_to_the_float32_one(monkeypatch):
-    monkeypatch.setattr(training_module, "native_bfloat16", lambda: False)
-    hint = training_module.float32_hint("default", amp=True, device="cpu")
+    import torch
+
+    from spacetrack.engine import precision
+
+    cpu = torch.device("cpu")
+    monkeypatch.setattr(precision, "native_bfloat16", lambda: False)
+    hint = training_module.float32_hint("default", amp=True, device=cpu)
     assert hint is not None and "train=cpu_float32" in hint
-    assert training_module.float32_hint("cpu_float32", amp=True, device="cpu") is None
-    assert training_module.float32_hint("default", amp=False, device="cpu") is None  # float32 chosen
-    assert training_module.float32_hint("default", amp=True, device="cuda") is None
-    assert training_module.float32_hint(None, amp=True, device="cpu") is None  # not a Hydra run
-    monkeypatch.setattr(training_module, "native_bfloat16", lambda: True)
-    assert training_module.float32_hint("default", amp=True, device="cpu") is None
+    assert training_module.float32_hint("cpu_float32", amp=True, device=cpu) is None
+    assert training_module.float32_hint("default", amp=False, device=cpu) is None  # float32 chosen
+    assert training_module.float32_hint("default", amp=True, device=torch.device("cuda")) is None
+    assert training_module.float32_hint(None, amp=True, device=cpu) is None  # not a Hydra run
+    monkeypatch.setattr(precision, "native_bfloat16", lambda: True)
+    assert training_module.float32_hint("default", amp=True, device=cpu) is None

@@ -26,11 +26,12 @@ from spacetrack.data.exposure import FrameExposure
 from spacetrack.data.frame_store import FrameStore
 from spacetrack.data.layout import check_rendered_truth, load_manifest, split_sequences
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation, image_source
+from spacetrack.device import resolve_device
 from spacetrack.engine.checkpoint import peek_checkpoint, resume_choice, unfinished_checkpoint
 from spacetrack.engine.distributed import World, broadcast_object, process_group
 from spacetrack.engine.loss import YoloLoss
 from spacetrack.engine.plots import plot_confusion_matrix, plot_pr_curves, prediction_grid
-from spacetrack.engine.precision import native_bfloat16
+from spacetrack.engine.precision import autocast_dtype
 from spacetrack.engine.pretrained import load_pretrained, resolve_weights
 from spacetrack.engine.trainer import Trainer
 from spacetrack.io import file_hash
@@ -171,7 +172,9 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     weights = resolve_weights(cfg.weights, model.arch)
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
-    hint = float32_hint(_profile(), bool(cfg.train.trainer.amp), str(cfg.train.trainer.device))
+    hint = float32_hint(
+        _profile(), bool(cfg.train.trainer.amp), resolve_device(str(cfg.train.trainer.device))
+    )
     if hint and world.is_main:
         print(f"fold {cfg.fold}: {hint}", flush=True)
     content = manifest.get("content_hash")
@@ -203,11 +206,11 @@ def _profile() -> str | None:
     return HydraConfig.get().runtime.choices.get("train")
 
 
-def float32_hint(profile: str | None, amp: bool, device: str) -> str | None:
-    """A line for a CPU training in float32 (no native bfloat16) with the default profile: where the
-    profile that fits the 30-minute budget there is; None elsewhere."""
-    on_cpu = device == "cpu" or (device == "auto" and not torch.cuda.is_available())
-    if profile != "default" or not (amp and on_cpu) or native_bfloat16():
+def float32_hint(profile: str | None, amp: bool, device: torch.device) -> str | None:
+    """A line for a CPU training whose mixed precision falls back to float32 (`autocast_dtype`: no
+    native bfloat16) with the default profile: where the profile that fits the 30-minute budget there
+    is; None elsewhere."""
+    if profile != "default" or device.type != "cpu" or not amp or autocast_dtype(device, amp) is not None:
         return None
     return (
         "this CPU has no native bfloat16, so steps run in float32 at about half the rate and a fold "
