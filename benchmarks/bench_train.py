@@ -5,6 +5,8 @@ crops against a JPEG decode per sample, in one run -> reports/train.json and rep
     python benchmarks/bench_train.py                 # YOLOv5s, 256-px crops, batch 8, 1 and 2 threads
     python benchmarks/bench_train.py --steps 3 --threads 1
     python benchmarks/bench_train.py --precisions float32 --report train_no_bf16   # -> reports/train_no_bf16.*
+    python benchmarks/bench_train.py --precisions float32 --threads 2 --models yolov5s yolov5s_gam \
+        --freeze 2 3 --report train_gam_no_bf16          # YOLOv5s against YOLOv5s + GAM, rows alternating
 
 Training step: forward, YOLO loss, backward and SGD step on a batch of real crops (random ones where
 the dataset is not built). bfloat16 runs through `torch.autocast("cpu", dtype=torch.bfloat16)`; the
@@ -13,7 +15,9 @@ only then does the trainer use it). Channels-last puts the model and each batch 
 trainer does with `train.trainer.channels_last: true` (the default). A frozen backbone (`--freeze`: the
 first k blocks, a NHWC row for each k) is trained as `train.freeze=k` trains it: backpropagation stops
 at the first trained block. The last column is each row's step time over the first precision's NCHW
-row (float32 unless `--precisions` leaves it out). Steps of every contender alternate, so load changes hit all alike.
+row of the same model (float32 unless `--precisions` leaves it out). `--models` times YOLOv5s and YOLOv5s
++ GAM (after SPPF, `model=yolov5s_gam`) in one run. Steps of every contender alternate, so load changes
+hit all alike.
 Data: samples per second of `CropDataset` reading the `FrameStore` cache against the whole-frame
 `YoloDataset` that decodes the JPEG (and letterboxes it) for every sample.
 """
@@ -40,6 +44,7 @@ from spacetrack.enhance import DwtHsvEnhancer
 from spacetrack.models.yolo import YOLOv5
 
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}  # autocast dtype (None: none)
+MODELS = {"yolov5s": None, "yolov5s_gam": "after_sppf"}  # name (conf/model) -> its GAM position
 AUGMENT = {"hue": 5, "saturation": 30, "value": 30, "fliplr": 0.5, "flipud": 0.5, "scale": 0.25,
            "translate": 0.0, "fill": 0}  # fmt: skip
 
@@ -60,11 +65,12 @@ def training_step(
     dtype: torch.dtype | None,
     channels_last: bool = False,
     freeze: int = 0,
+    model_name: str = "yolov5s",
 ):
-    """A callable running one training step of a fresh YOLOv5s in `dtype` autocast (None: float32), in
-    channels-last layout or not, its first `freeze` backbone blocks frozen."""
+    """A callable running one training step of a fresh YOLOv5s (`model_name`, a key of MODELS) in `dtype`
+    autocast (None: float32), in channels-last layout or not, its first `freeze` backbone blocks frozen."""
     torch.manual_seed(0)
-    model = YOLOv5(num_classes=3).train()
+    model = YOLOv5(num_classes=3, gam_position=MODELS[model_name]).train()
     model.freeze_backbone(freeze)
     layout = torch.channels_last if channels_last else torch.contiguous_format
     model.to(memory_format=layout)
@@ -128,6 +134,7 @@ def main() -> None:
         "--freeze", type=int, nargs="*", default=[2, 5], help="backbone blocks frozen, a row each"
     )
     parser.add_argument("--precisions", nargs="+", choices=list(PRECISIONS), default=list(PRECISIONS))
+    parser.add_argument("--models", nargs="+", choices=list(MODELS), default=["yolov5s"])
     parser.add_argument("--report", default="train", help="reports/<name>.json and .md")
     args = parser.parse_args()
     if not args.report.isidentifier():
@@ -143,29 +150,30 @@ def main() -> None:
         torch.set_num_threads(threads)
         settings = [(layout, 0) for layout in ("NCHW", "NHWC")] + [("NHWC", k) for k in args.freeze if k]
         calls = {
-            f"{precision} {layout} {freeze}": training_step(
-                args.size, args.batch, crops, dtype, layout == "NHWC", freeze
+            f"{model} {precision} {layout} {freeze}": training_step(
+                args.size, args.batch, crops, dtype, layout == "NHWC", freeze, model
             )
+            for model in args.models
             for precision, dtype in PRECISIONS.items()
             if precision in args.precisions
             for layout, freeze in settings
         }
         wall, _ = interleaved_samples(calls, repeats=args.steps)
-        fp32 = summarize(wall[f"{args.precisions[0]} NCHW 0"], scale=1.0)["median"]
         for name, samples in wall.items():
-            precision, layout, freeze = name.split()
+            model, precision, layout, freeze = name.split()
+            base = summarize(wall[f"{model} {args.precisions[0]} NCHW 0"], scale=1.0)["median"]
             median = summarize(samples, scale=1.0)["median"]
-            entry = {"precision": precision, "layout": layout, "frozen_blocks": int(freeze), "threads": threads,
-                     "img_per_s": args.batch / median, "step_s": summarize(samples, scale=1.0),
-                     "x_float32_time": median / fp32}  # fmt: skip
+            entry = {"model": model, "precision": precision, "layout": layout, "frozen_blocks": int(freeze),
+                     "threads": threads, "img_per_s": args.batch / median, "step_s": summarize(samples, scale=1.0),
+                     "x_float32_time": median / base}  # fmt: skip
             record["rows"].append(entry)
-            rows.append(
-                [precision, layout, freeze, threads, entry["img_per_s"], median, entry["x_float32_time"]]
-            )
+            cells = [precision, layout, freeze, threads, entry["img_per_s"], median, entry["x_float32_time"]]
+            rows.append(([model] if len(args.models) > 1 else []) + cells)
     data = data_rates(args.data, args.size, samples=args.samples)
     record["data"] = [{"source": r[0], "samples_per_s": r[1]} for r in data]
     md = (
-        f"# Detector training throughput (CPU)\n\nYOLOv5s, batch {args.batch} of {args.size}-px crops "
+        f"# Detector training throughput (CPU)\n\n{' and '.join(args.models)}, batch {args.batch} of "
+        f"{args.size}-px crops "
         f"({'real crops of ' + str(args.data) if crops else 'random images'}), forward + loss + backward + "
         f"SGD step, medians of {args.steps} steps per row, contenders alternating. This CPU computes "
         f"bfloat16 natively: **{'yes' if record['native_bfloat16'] else 'no'}** (the trainer uses "
@@ -173,7 +181,8 @@ def main() -> None:
         "trainer's default. Frozen: backbone blocks not trained (`train.freeze`; 0: the whole network "
         "trains, the default).\n\n"
         + markdown_table(
-            [
+            (["model"] if len(args.models) > 1 else [])
+            + [
                 "precision",
                 "layout",
                 "frozen",

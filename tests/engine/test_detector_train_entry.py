@@ -278,14 +278,19 @@ def test_a_frozen_backbone_ends_the_fine_tuning_as_the_pretrained_file_has_it(ti
         assert not (tmp_path / "bad").exists()
 
 
-def test_the_float32_profile_is_the_cpu_profile_frozen_and_shortened():
-    default = OmegaConf.to_container(compose_config("train", ["logger=none"]).train)
-    float32 = OmegaConf.to_container(compose_config("train", ["logger=none", "train=cpu_float32"]).train)
-    assert (float32["freeze"], float32["trainer"]["epochs"]) == (2, 8)
+def test_the_float32_profiles_are_the_cpu_profile_frozen_and_shortened():
+    def profile(name):
+        overrides = ["logger=none", f"train={name}"]
+        return OmegaConf.to_container(compose_config("train", overrides).train)
+
+    default, float32, float32_gam = (profile(n) for n in ("default", "cpu_float32", "cpu_float32_gam"))
     assert (default["freeze"], default["trainer"]["epochs"]) == (0, 16)
-    for profile in (default, float32):
-        del profile["freeze"], profile["trainer"]["epochs"]
+    assert (float32["freeze"], float32["trainer"]["epochs"]) == (2, 8)
+    assert (float32_gam["freeze"], float32_gam["trainer"]["epochs"]) == (2, 6)
+    for each in (default, float32, float32_gam):
+        del each["freeze"], each["trainer"]["epochs"]
     assert float32 == default  # nothing else differs: same crops, rates, augmentation
+    assert float32_gam == default
 
 
 def test_a_float32_cpu_on_the_default_profile_is_pointed_to_the_float32_one(monkeypatch):
@@ -296,8 +301,15 @@ def test_a_float32_cpu_on_the_default_profile_is_pointed_to_the_float32_one(monk
     cpu = torch.device("cpu")
     monkeypatch.setattr(precision, "native_bfloat16", lambda: False)
     hint = training_module.float32_hint("default", amp=True, device=cpu)
-    assert hint is not None and "train=cpu_float32" in hint
+    assert hint is not None and hint.endswith("train=cpu_float32 fits 30 minutes (docs/training.md)")
+    assert "YOLOv5s fold takes about an hour" in hint
     assert training_module.float32_hint("cpu_float32", amp=True, device=cpu) is None
+    # GAM's attention makes a float32 step slower: cpu_float32 is over the budget too, cpu_float32_gam fits
+    for over in ("default", "cpu_float32"):
+        hint = training_module.float32_hint(over, amp=True, device=cpu, gam=True)
+        assert hint is not None and f"with train={over}; train=cpu_float32_gam fits" in hint
+    assert training_module.float32_hint("cpu_float32_gam", amp=True, device=cpu, gam=True) is None
+    assert training_module.float32_hint("full", amp=True, device=cpu, gam=True) is None
     assert training_module.float32_hint("default", amp=False, device=cpu) is None  # float32 chosen
     assert training_module.float32_hint("default", amp=True, device=torch.device("cuda")) is None
     assert training_module.float32_hint(None, amp=True, device=cpu) is None  # not a Hydra run

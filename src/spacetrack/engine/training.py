@@ -173,7 +173,10 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
     train_set, val_set = build_datasets(cfg, root, train_names, val_names, len(class_names), enhancer)
     trainer = instantiate(cfg.train.trainer)
     hint = float32_hint(
-        _profile(), bool(cfg.train.trainer.amp), resolve_device(str(cfg.train.trainer.device))
+        _profile(),
+        bool(cfg.train.trainer.amp),
+        resolve_device(str(cfg.train.trainer.device)),
+        gam=model.arch["gam_position"] is not None,
     )
     if hint and world.is_main:
         print(f"fold {cfg.fold}: {hint}", flush=True)
@@ -206,15 +209,27 @@ def _profile() -> str | None:
     return HydraConfig.get().runtime.choices.get("train")
 
 
-def float32_hint(profile: str | None, amp: bool, device: torch.device) -> str | None:
+# The profile that fits one fold's fine-tuning in 30 minutes on two cores where steps run in float32,
+# and the profiles it replaces there: plain YOLOv5s fits with cpu_float32; GAM's attention costs a float32
+# step a third more, so YOLOv5s + GAM needs cpu_float32_gam (experiments/detector_cv/float32_gam/).
+FLOAT32_PROFILES = {False: "cpu_float32", True: "cpu_float32_gam"}
+_OVER_BUDGET_IN_FLOAT32 = {False: ("default",), True: ("default", "cpu_float32")}
+
+
+def float32_hint(profile: str | None, amp: bool, device: torch.device, *, gam: bool = False) -> str | None:
     """A line for a CPU training whose mixed precision falls back to float32 (`autocast_dtype`: no
-    native bfloat16) with the default profile: where the profile that fits the 30-minute budget there
-    is; None elsewhere."""
-    if profile != "default" or device.type != "cpu" or not amp or autocast_dtype(device, amp) is not None:
+    native bfloat16) on a profile that takes over 30 minutes a fold there (the default one; for a model
+    with GAM also `cpu_float32`): which profile fits the budget; None elsewhere."""
+    if profile not in _OVER_BUDGET_IN_FLOAT32[gam] or device.type != "cpu" or not amp:
         return None
+    if autocast_dtype(device, amp) is not None:
+        return None
+    model = "YOLOv5s + GAM" if gam else "YOLOv5s"
+    minutes = "about an hour" if profile == "default" else "over 30 minutes"
     return (
-        "this CPU has no native bfloat16, so steps run in float32 at about half the rate and a fold "
-        "takes about an hour on two cores; train=cpu_float32 fits 30 minutes (docs/training.md)"
+        f"this CPU has no native bfloat16, so steps run in float32 at about half the rate and a "
+        f"{model} fold takes {minutes} on two cores with train={profile}; "
+        f"train={FLOAT32_PROFILES[gam]} fits 30 minutes (docs/training.md)"
     )
 
 
