@@ -159,13 +159,15 @@ def main() -> None:
             for layout, freeze in settings
         }
         wall, _ = interleaved_samples(calls, repeats=args.steps)
+        bases = {
+            m: summarize(wall[f"{m} {args.precisions[0]} NCHW 0"], scale=1.0)["median"] for m in args.models
+        }
         for name, samples in wall.items():
             model, precision, layout, freeze = name.split()
-            base = summarize(wall[f"{model} {args.precisions[0]} NCHW 0"], scale=1.0)["median"]
             median = summarize(samples, scale=1.0)["median"]
             entry = {"model": model, "precision": precision, "layout": layout, "frozen_blocks": int(freeze),
                      "threads": threads, "img_per_s": args.batch / median, "step_s": summarize(samples, scale=1.0),
-                     "x_float32_time": median / base}  # fmt: skip
+                     "x_float32_time": median / bases[model]}  # fmt: skip
             record["rows"].append(entry)
             cells = [precision, layout, freeze, threads, entry["img_per_s"], median, entry["x_float32_time"]]
             rows.append(([model] if len(args.models) > 1 else []) + cells)

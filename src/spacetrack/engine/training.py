@@ -209,18 +209,20 @@ def _profile() -> str | None:
     return HydraConfig.get().runtime.choices.get("train")
 
 
-# The profile that fits one fold's fine-tuning in 30 minutes on two cores where steps run in float32,
-# and the profiles it replaces there: plain YOLOv5s fits with cpu_float32; GAM's attention costs a float32
-# step a third more, so YOLOv5s + GAM needs cpu_float32_gam (experiments/detector_cv/float32_gam/).
+# The profile that fits one fold's fine-tuning in 30 minutes on two cores where steps run in float32, by
+# whether the model has GAM: plain YOLOv5s fits with cpu_float32; GAM's attention costs a float32 step a
+# third more, so YOLOv5s + GAM needs cpu_float32_gam (experiments/detector_cv/float32_gam/). The default
+# profile and the profiles of this table ahead of the model's own take longer there.
 FLOAT32_PROFILES = {False: "cpu_float32", True: "cpu_float32_gam"}
-_OVER_BUDGET_IN_FLOAT32 = {False: ("default",), True: ("default", "cpu_float32")}
 
 
 def float32_hint(profile: str | None, amp: bool, device: torch.device, *, gam: bool = False) -> str | None:
     """A line for a CPU training whose mixed precision falls back to float32 (`autocast_dtype`: no
     native bfloat16) on a profile that takes over 30 minutes a fold there (the default one; for a model
     with GAM also `cpu_float32`): which profile fits the budget; None elsewhere."""
-    if profile not in _OVER_BUDGET_IN_FLOAT32[gam] or device.type != "cpu" or not amp:
+    fits = FLOAT32_PROFILES[gam]
+    longer = ["default", *FLOAT32_PROFILES.values()]
+    if profile not in longer[: longer.index(fits)] or device.type != "cpu" or not amp:
         return None
     if autocast_dtype(device, amp) is not None:
         return None
@@ -229,7 +231,7 @@ def float32_hint(profile: str | None, amp: bool, device: torch.device, *, gam: b
     return (
         f"this CPU has no native bfloat16, so steps run in float32 at about half the rate and a "
         f"{model} fold takes {minutes} on two cores with train={profile}; "
-        f"train={FLOAT32_PROFILES[gam]} fits 30 minutes (docs/training.md)"
+        f"train={fits} fits 30 minutes (docs/training.md)"
     )
 
 
