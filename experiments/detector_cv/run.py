@@ -83,29 +83,32 @@ ADDED_LATER = {
 }
 
 
-def validation_sets(cfg, frame_stride: int) -> tuple[list[str], dict[str, YoloDataset]]:
-    """(class names, {scenario: its validation sequences of `cfg.fold` as one dataset}), scenarios sorted,
-    every `frame_stride`-th frame, enhanced as `cfg.enhance` says."""
+def validation_sets(
+    cfg, frame_stride: int, per_sequence: bool = False
+) -> tuple[list[str], dict[str, YoloDataset], dict[str, str]]:
+    """(class names, {scenario: its validation sequences of `cfg.fold` as one dataset}, {sequence: its
+    scenario}), scenarios sorted, every `frame_stride`-th frame, enhanced as `cfg.enhance` says;
+    `per_sequence`: one dataset per validation sequence, keyed by its name, instead."""
     root = Path(cfg.data_root) / cfg.data.name
     manifest = load_manifest(root)
     _, val_names = split_sequences(manifest, cfg.fold)
-    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
+    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"] if s["name"] in val_names}
     enhancer = instantiate(cfg.enhance)
     image_dir, on_the_fly = image_source(root, val_names, enhancer.name)
     store = FrameStore(root=root, image_dir=image_dir, enhancer=enhancer if on_the_fly else None,
                        enhancer_name=enhancer.name)  # fmt: skip
     classes = list(manifest["class_names"])
+    if per_sequence:
+        groups = {v: [v] for v in val_names}
+    else:
+        groups = {g: [v for v in val_names if scenario[v] == g] for g in sorted(set(scenario.values()))}
     sets = {
         name: YoloDataset(
-            root=root,
-            sequences=[v for v in val_names if scenario[v] == name],
-            num_classes=len(classes),
-            store=store,
-            frame_stride=frame_stride,
-        )  # fmt: skip
-        for name in sorted({scenario[v] for v in val_names})
+            root=root, sequences=members, num_classes=len(classes), store=store, frame_stride=frame_stride
+        )
+        for name, members in groups.items()
     }
-    return classes, sets
+    return classes, sets, scenario
 
 
 def score(cfg, weights: Path, frame_stride: int, augment: bool = False) -> dict:
@@ -113,7 +116,7 @@ def score(cfg, weights: Path, frame_stride: int, augment: bool = False) -> dict:
     confusion matrix over all of them (`evaluate`'s: row true class, column predicted, plus background and
     missed); with `augment`, detected with test-time augmentation."""
     model = load_detector(weights)
-    classes, sets = validation_sets(cfg, frame_stride)
+    classes, sets, _ = validation_sets(cfg, frame_stride)
     out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, []
     for group, data in sets.items():
         loader = DataLoader(data, batch_size=4, collate_fn=collate)

@@ -89,6 +89,17 @@ def test_multi_label_nms_keeps_every_class_an_anchor_scores_above_the_threshold(
     assert every[0, :4].tolist() == every[1, :4].tolist() == [30.0, 35.0, 50.0, 45.0]
 
 
+def test_nms_with_probabilities_carries_the_kept_anchors_objectness_and_class_probabilities():
+    pred = torch.tensor([[[40, 40, 20, 10, 0.9, 0.1, 0.8, 0.6], [41, 40, 20, 10, 0.5, 0.1, 0.9, 0.2]]])
+    (plain,) = non_max_suppression(pred, conf_threshold=0.3, iou_threshold=0.5)
+    (out,) = non_max_suppression(pred, conf_threshold=0.3, iou_threshold=0.5, probabilities=True)
+    assert out.shape == (1, 10)  # x1, y1, x2, y2, score, class, objectness, three class probabilities
+    assert out[:, :6].tolist() == plain.tolist()  # the first anchor (0.72) suppresses the second (0.45)
+    assert out[0, 6:].tolist() == pytest.approx([0.9, 0.1, 0.8, 0.6])
+    with pytest.raises(ValueError, match="multi_label detections do not carry"):
+        non_max_suppression(pred, multi_label=True, probabilities=True)
+
+
 def test_objectness_score_keeps_a_box_the_model_cannot_name_and_still_names_it_by_its_best_class():
     # Objectness 0.9, classes 0.45 / 0.40 / 0.1: a target the model splits between two names.
     pred = torch.tensor([[[40, 40, 20, 10, 0.9, 0.45, 0.40, 0.1], [90, 90, 8, 8, 0.2, 0.9, 0.1, 0.1]]])

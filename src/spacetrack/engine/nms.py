@@ -25,6 +25,7 @@ def non_max_suppression(
     multi_label: bool = False,
     score: str = "class",
     agnostic: bool = False,
+    probabilities: bool = False,
 ) -> list[torch.Tensor]:
     """Per image an (n, 6) tensor `x1, y1, x2, y2, score, class` (xyxy pixels), best score first.
 
@@ -42,10 +43,15 @@ def non_max_suppression(
     `agnostic`: NMS over every class at once, so a target the model names two ways keeps one box, its
     best-scored (what a tracker that follows every class alike wants); per class by default (YOLOv5's
     validation, and the mAP).
+
+    `probabilities`: each row also carries what its anchor predicted, `objectness, p_1 .. p_C` (n, 7 + C),
+    for a step after NMS that weighs the classes itself. Not with `multi_label`.
     """
     check_score(score)
     if multi_label and score != "class":
         raise ValueError("multi_label detections are scored by class (score='class')")
+    if multi_label and probabilities:
+        raise ValueError("multi_label detections do not carry their anchor's probabilities")
     out = []
     by_class = score == "class"
     num_classes = pred.shape[2] - 5
@@ -62,8 +68,9 @@ def non_max_suppression(
                 conf = p[:, 4]
                 cls = torch.zeros_like(conf, dtype=torch.long)
             keep = conf > conf_threshold
-            boxes, conf, cls = xywh_to_xyxy(p[keep, :4]), conf[keep], cls[keep]
+            boxes, conf, cls, extra = xywh_to_xyxy(p[keep, :4]), conf[keep], cls[keep], p[keep, 4:]
         groups = torch.zeros_like(cls) if agnostic else cls
         kept = batched_nms(boxes.float(), conf.float(), groups, iou_threshold)[:max_det]
-        out.append(torch.cat((boxes[kept], conf[kept, None], cls[kept, None].to(boxes.dtype)), dim=1))
+        rows = [boxes[kept], conf[kept, None], cls[kept, None].to(boxes.dtype)]
+        out.append(torch.cat(rows + [extra[kept]] if probabilities else rows, dim=1))
     return out
