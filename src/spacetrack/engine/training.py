@@ -231,7 +231,8 @@ def float32_hint(profile: str | None, amp: bool, device: torch.device, *, gam: b
     return (
         f"this CPU has no native bfloat16, so steps run in float32 at about half the rate and a "
         f"{model} fold takes {minutes} on two cores with train={profile}; "
-        f"train={fits} fits 30 minutes (docs/training.md)"
+        f"train={fits} fits 30 minutes on a CPU as fast as the 2-core EPYC it was timed on "
+        f"(docs/training.md; benchmarks/bench_train.py compares)"
     )
 
 
