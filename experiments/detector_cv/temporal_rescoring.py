@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.utils.data import DataLoader
 
-from spacetrack.data.yolo_dataset import YoloDataset
+from spacetrack.data.yolo_dataset import YoloDataset, collate
 from spacetrack.engine.boxes import xywh_to_xyxy
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.metrics import box_iou, detection_metrics, match_detections
@@ -60,17 +61,21 @@ SCORED = ("map50", "map50_95", "recall_at_score")
 REPRODUCE_TOLERANCE = 0.003
 
 
-def detect_sequence(model, data: YoloDataset, batch: int = 4) -> list[np.ndarray]:
-    """Per frame of `data` (in order) an (n, 7 + C) array: `x1, y1, x2, y2, score, class, objectness,
-    p_1 .. p_C` (`non_max_suppression` with `probabilities`)."""
-    out = []
-    for start in range(0, len(data), batch):
-        images = np.stack([data[i][0] for i in range(start, min(start + batch, len(data)))])
-        x = torch.from_numpy(images).permute(0, 3, 1, 2).float() / 255
-        with torch.no_grad():
-            decoded = model.detect.decode(model(x)).float()
-        out += [d.numpy() for d in non_max_suppression(decoded, **cv.NMS, probabilities=True)]
-    return out
+@torch.no_grad()
+def detect_sequence(model, data: YoloDataset, batch: int = 4) -> tuple[list[np.ndarray], list[tuple]]:
+    """Per frame of `data` (in order), read once: its detections, an (n, 7 + C) array `x1, y1, x2, y2,
+    score, class, objectness, p_1 .. p_C` (`non_max_suppression` with `probabilities`), and its truth,
+    (boxes xyxy in pixels, classes)."""
+    detections, truth = [], []
+    for images, targets in DataLoader(data, batch_size=batch, collate_fn=collate):
+        x = images.float() / 255
+        found = non_max_suppression(model.predict(x).float(), **cv.NMS, probabilities=True)
+        size = torch.tensor(x.shape[2:][::-1] * 2, dtype=torch.float32)
+        for i, det in enumerate(found):
+            mine = targets[targets[:, 0] == i]
+            detections.append(det.numpy())
+            truth.append(((xywh_to_xyxy(mine[:, 2:6]) * size).numpy(), mine[:, 1].numpy()))
+    return detections, truth
 
 
 def rescore(frames: list[np.ndarray], a_obj: float, a_cls: float) -> list[tuple[np.ndarray, ...]]:
@@ -100,20 +105,18 @@ def rescore(frames: list[np.ndarray], a_obj: float, a_cls: float) -> list[tuple[
 
 
 def scores(
-    detected: dict[str, list], labels: dict[str, list], scenario: dict[str, str], setting, frame_stride: int
+    detected: dict[str, list], truth: dict[str, list], scenario: dict[str, str], setting, frame_stride: int
 ) -> dict:
     """{group: {metric: value}} of one setting: class-aware `SCORED` and the same with every class as one
     (suffix `_any`), every `frame_stride`-th frame, per scenario and "all"."""
     pooled: dict[str, list] = {}
     for seq, frames in detected.items():
         for t, (boxes, score, cls) in list(enumerate(rescore(frames, *setting)))[::frame_stride]:
-            image_labels, size = labels[seq][t]
-            gt = xywh_to_xyxy(torch.from_numpy(image_labels[:, 1:5])).numpy() * size
-            truth = image_labels[:, 0]
-            hit = match_detections(boxes, score, cls, gt, truth)
-            hit_any = match_detections(boxes, score, np.zeros(len(cls)), gt, np.zeros(len(truth)))
+            gt, gt_cls = truth[seq][t]
+            hit = match_detections(boxes, score, cls, gt, gt_cls)
+            hit_any = match_detections(boxes, score, np.zeros(len(cls)), gt, np.zeros(len(gt_cls)))
             for group in (scenario[seq], "all"):
-                pooled.setdefault(group, []).append((hit, hit_any, score, cls, truth))
+                pooled.setdefault(group, []).append((hit, hit_any, score, cls, gt_cls))
     out = {}
     for group, parts in pooled.items():
         hit, hit_any, score, cls, truth = (np.concatenate(a) for a in zip(*parts, strict=True))
@@ -134,12 +137,10 @@ def fold_rows(study: Path, variant: str, fold: int, frame_stride: int) -> dict |
     model = load_detector(found[2])
     model.eval()
     _, sets, scenario = cv.validation_sets(cfg, frame_stride=1, per_sequence=True)
-    detected, labels = {}, {}
+    detected, truth = {}, {}
     for seq, data in sets.items():
-        detected[seq] = detect_sequence(model, data)
-        size = np.array([data[0][0].shape[1], data[0][0].shape[0]] * 2, dtype=np.float64)
-        labels[seq] = [(data[i][1], size) for i in range(len(data))]
-    rows = {name: scores(detected, labels, scenario, s, frame_stride) for name, s in SETTINGS.items()}
+        detected[seq], truth[seq] = detect_sequence(model, data)
+    rows = {name: scores(detected, truth, scenario, s, frame_stride) for name, s in SETTINGS.items()}
     alone = rows["detector alone"]["all"]
     for key in SCORED:
         if abs(alone[key] - piece["all"][key]) > REPRODUCE_TOLERANCE:

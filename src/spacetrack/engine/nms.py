@@ -68,7 +68,8 @@ def non_max_suppression(
                 conf = p[:, 4]
                 cls = torch.zeros_like(conf, dtype=torch.long)
             keep = conf > conf_threshold
-            boxes, conf, cls, extra = xywh_to_xyxy(p[keep, :4]), conf[keep], cls[keep], p[keep, 4:]
+            boxes, conf, cls = xywh_to_xyxy(p[keep, :4]), conf[keep], cls[keep]
+            extra = p[keep, 4:] if probabilities else None
         groups = torch.zeros_like(cls) if agnostic else cls
         kept = batched_nms(boxes.float(), conf.float(), groups, iou_threshold)[:max_det]
         rows = [boxes[kept], conf[kept, None], cls[kept, None].to(boxes.dtype)]
