@@ -72,10 +72,14 @@ MULTI = "_multi"
 KINDS = {"matches": "", "matches_any": ANY, "matches_multi": MULTI}
 # Parameters that do not change what training learns: a run differing only in them is reused.
 NEUTRAL = ("threads", "device", "workers", "channels_last")
+# A piece trains its recipe's every epoch, however long that takes on the machine at hand: the profile's
+# time budget (train.trainer.max_minutes) would make what a piece learns depend on the machine's speed.
+STUDY_OVERRIDES = ["train.trainer.max_minutes=null"]
 # Training keys added after runs were made, at the value that trains as those runs did: a run without the
 # key matches that value.
 ADDED_LATER = {
     "train.trainer.sync_bn": "False",
+    "train.trainer.max_minutes": "None",
     "train.augment.exposure": "0.0",
     "train.augment.exposure_gain": "[0.15, 3.0]",
     "train.crops.small_bias": "0.0",
@@ -180,7 +184,7 @@ def variant_config(slug: str, fold: int, overrides: list[str], out: Path = HERE)
     cfg = compose_config(
         "train",
         [*VARIANTS[slug][1], f"fold={fold}", "resume=auto", f"resume_dirs=[{folder.parent}]",
-         f"output_dir={folder}", *overrides],
+         f"output_dir={folder}", *STUDY_OVERRIDES, *overrides],
     )  # fmt: skip
     with open_dict(cfg):
         cfg.cv_parent_run_id = None

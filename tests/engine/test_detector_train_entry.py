@@ -72,6 +72,7 @@ def test_a_resumed_training_continues_its_mlflow_run(tiny_dataset, tmp_path):
     assert again.info.status == "FINISHED"
     assert again.data.tags["resumes"] == "1"
     assert again.data.tags["data_content"] == "sha256:0"  # the manifest's content_hash
+    assert again.data.metrics["planned_epochs"] == 1  # the smoke profile's one epoch fits its time budget
 
 
 def test_a_dataset_rendered_again_under_its_name_is_not_resumed(tiny_dataset, tmp_path):
@@ -302,12 +303,16 @@ def test_a_float32_cpu_on_the_default_profile_is_pointed_to_the_float32_one(monk
     monkeypatch.setattr(precision, "native_bfloat16", lambda: False)
     hint = training_module.float32_hint("default", amp=True, device=cpu)
     assert hint is not None and "train=cpu_float32 fits 30 minutes on a CPU as fast as" in hint
-    assert "YOLOv5s fold takes about an hour" in hint
+    assert "YOLOv5s fold would take about an hour" in hint
+    assert "its time budget (train.trainer.max_minutes) leaves out the epochs that do not fit" in hint
     assert training_module.float32_hint("cpu_float32", amp=True, device=cpu) is None
+    unbudgeted = training_module.float32_hint("default", amp=True, device=cpu, budget=False)
+    assert "max_minutes" not in unbudgeted and "with train=default; train=cpu_float32 fits" in unbudgeted
     # GAM's attention makes a float32 step slower: cpu_float32 is over the budget too, cpu_float32_gam fits
     for over in ("default", "cpu_float32"):
         hint = training_module.float32_hint(over, amp=True, device=cpu, gam=True)
-        assert hint is not None and f"with train={over}; train=cpu_float32_gam fits" in hint
+        assert hint is not None and f"with train={over}, so its time budget" in hint
+        assert "train=cpu_float32_gam fits 30 minutes" in hint
     assert training_module.float32_hint("cpu_float32_gam", amp=True, device=cpu, gam=True) is None
     assert training_module.float32_hint("full", amp=True, device=cpu, gam=True) is None
     assert training_module.float32_hint("default", amp=False, device=cpu) is None  # float32 chosen

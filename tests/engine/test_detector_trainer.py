@@ -6,8 +6,9 @@ import torch
 
 from detector_helpers import loss_for, tiny_model, write_tiny_dataset
 from spacetrack.data.yolo_dataset import YoloDataset, build_augmentation
-from spacetrack.engine.checkpoint import load_checkpoint, load_detector
-from spacetrack.engine.trainer import Trainer
+from spacetrack.engine.checkpoint import load_checkpoint, load_detector, unfinished_checkpoint
+from spacetrack.engine.optim import lr_factor
+from spacetrack.engine.trainer import Trainer, planned_epochs
 
 SIZE = 64
 SETTINGS = {"epochs": 2, "batch_size": 4, "nbs": 4, "warmup_epochs": 0.5, "ema_tau": 5.0, "device": "cpu"}
@@ -50,6 +51,7 @@ def straight_run(tmp_path_factory):
 def test_smoke_training_writes_checkpoints_and_metrics(straight_run):
     _, result = straight_run
     assert [r["epoch"] for r in result["history"]] == [0, 1]
+    assert result["planned_epochs"] == 2  # no time budget: every configured epoch
     for record in result["history"]:
         assert math.isfinite(record["box"] + record["obj"] + record["cls"])
         assert 0 <= record["map50_95"] <= record["map50"] <= 1
@@ -164,3 +166,84 @@ def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_dataset, tmp_pat
     with pytest.raises(FloatingPointError, match=r"epoch 1 batch 0; stopped, .*last.pt \(epoch 0\) is kept"):
         fit(tiny_dataset, tmp_path / "run", loss_fn=poisoned)
     assert load_checkpoint(tmp_path / "run" / "weights" / "last.pt")["epoch"] == 0
+
+
+def test_planned_epochs_fit_the_time_left():
+    # 12 of 30 minutes spent on 2 epochs of 5 minutes (and 2 of setup): 18 left hold 3 more epochs
+    assert planned_epochs(done=2, configured=16, elapsed_s=720, epoch_s=300, budget_s=1800) == 5
+    # never more than configured, never fewer than done (an epoch longer than the whole budget)
+    assert planned_epochs(done=2, configured=4, elapsed_s=60, epoch_s=10, budget_s=1800) == 4
+    assert planned_epochs(done=1, configured=16, elapsed_s=2400, epoch_s=2400, budget_s=1800) == 1
+    # a part of an epoch left is not an epoch
+    assert planned_epochs(done=1, configured=16, elapsed_s=600, epoch_s=600, budget_s=1199) == 1
+
+
+class EpochClock:
+    """A clock that reads `minutes` minutes per epoch begun: each `set_epoch` of the training set is an
+    epoch taking exactly that long, whatever the machine."""
+
+    def __init__(self, train_set, minutes: float) -> None:
+        self.now, self.minutes = 0.0, minutes
+        begin = train_set.set_epoch
+
+        def set_epoch(epoch: int) -> None:
+            self.now += 60 * self.minutes
+            begin(epoch)
+
+        train_set.set_epoch = set_epoch
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def budgeted_fit(root, out_dir, *, minutes_per_epoch, resume_from=None, **overrides):
+    torch.manual_seed(0)
+    model = tiny_model()
+    train, val = datasets(root)
+    trainer = Trainer(**{**SETTINGS, "epochs": 3, **overrides})
+    trainer.clock = EpochClock(train, minutes_per_epoch)
+    result = trainer.fit(model=model, loss_fn=loss_for(model, SIZE), train_set=train, val_set=val,
+                         out_dir=out_dir, resume_from=resume_from)  # fmt: skip
+    return result, trainer
+
+
+def test_a_time_budget_plans_the_epochs_that_fit_and_decays_the_rate_over_them(
+    straight_run, tmp_path, capsys
+):
+    tiny_dataset, _ = straight_run
+    # 10-minute epochs, 25 minutes: after the first epoch 15 minutes are left, one more epoch fits
+    result, trainer = budgeted_fit(tiny_dataset, tmp_path / "run", minutes_per_epoch=10, max_minutes=25)
+    assert result["planned_epochs"] == 2
+    assert [r["epoch"] for r in result["history"]] == [0, 1]
+    assert "so 2 of the 3 epochs fit" in capsys.readouterr().out
+    # the second epoch's rate is the last of a 2-epoch schedule, not the middle of a 3-epoch one
+    expected = trainer.lr0 * lr_factor(1, epochs=2, lrf=trainer.lrf, schedule=trainer.schedule)
+    assert result["history"][1]["lr"] == pytest.approx(expected)
+    assert expected != pytest.approx(trainer.lr0 * lr_factor(1, epochs=3, lrf=trainer.lrf, schedule="linear"))
+    state = load_checkpoint(result["last"])
+    assert state["planned_epochs"] == 2 and state["elapsed_s"] == pytest.approx(1200)
+    # the plan is done: resume=auto finds nothing left to train in the folder
+    settings = {**trainer.settings}
+    assert unfinished_checkpoint([tmp_path], arch=tiny_model().arch, settings=settings) is None
+
+    # Resumed without the budget, the run goes on to every configured epoch.
+    resumed, _ = budgeted_fit(tiny_dataset, tmp_path / "run", minutes_per_epoch=10, max_minutes=None,
+                              resume_from=result["last"])  # fmt: skip
+    assert resumed["planned_epochs"] == 3
+    assert [r["epoch"] for r in resumed["history"]] == [0, 1, 2]
+
+
+def test_a_budget_that_holds_every_epoch_changes_nothing(straight_run, tmp_path):
+    tiny_dataset, straight = straight_run
+    result, _ = budgeted_fit(tiny_dataset, tmp_path / "run", minutes_per_epoch=1, max_minutes=30, epochs=2)
+    a, b = load_checkpoint(straight["last"]), load_checkpoint(result["last"])
+    assert b["planned_epochs"] == 2
+    for name, value in a["model"].items():
+        assert torch.equal(value, b["model"][name]), f"model.{name} differs under a budget that holds"
+
+
+def test_a_budget_that_is_not_a_positive_number_is_refused():
+    with pytest.raises(
+        ValueError, match="train.trainer.max_minutes must be a positive number of minutes or null, got 0"
+    ):
+        Trainer(**{**SETTINGS, "max_minutes": 0})

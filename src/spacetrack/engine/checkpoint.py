@@ -1,7 +1,9 @@
 """Detector checkpoints: written atomically, with the architecture and training settings that made them.
 
 A checkpoint is a dict with `arch` (the YOLOv5 constructor keywords), `model` and `ema` state dicts,
-`ema_updates`, `optimizer`, `scaler`, `epoch` (last finished, 0-based), `partial` (None, or how far the
+`ema_updates`, `optimizer`, `scaler`, `epoch` (last finished, 0-based), `planned_epochs` (the epochs the
+run trains in all: fewer than its `epochs` setting where a time budget bound; absent: that setting),
+`elapsed_s` (seconds of the time budget spent; absent: none), `partial` (None, or how far the
 next epoch got when the checkpoint was written mid-epoch: `batch`, counted in global batches, and the
 loss sums so far of all processes), `best_fitness`, `history` (metrics per epoch), `settings` (the
 trainer's keywords) and `world_size` (the processes that trained it; absent: one). Loading one for
@@ -62,8 +64,9 @@ def load_detector(path: str | Path) -> YOLOv5:
 
 
 # Settings that may differ on resume: samples are augmented by (seed, epoch, index), not by worker; the
-# memory layout of the activations changes the speed, not what is learned (only the order of sums).
-RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes", "channels_last")
+# memory layout of the activations changes the speed, not what is learned (only the order of sums); a
+# resumed run plans its remaining epochs with the time budget it is given now.
+RESULT_NEUTRAL = ("workers", "progress", "checkpoint_minutes", "channels_last", "max_minutes")
 # Settings newer than some checkpoints (trainer keywords and run settings), with the value those
 # checkpoints were trained with.
 LATER_SETTINGS = {"sync_bn": False, "freeze": 0}
@@ -84,7 +87,8 @@ def unfinished_checkpoint(
     folders: list[str | Path], *, arch: dict[str, Any], settings: dict[str, Any]
 ) -> Path | None:
     """The newest `weights/last.pt` under `folders` that a training with `arch` and `settings` (the
-    trainer's keywords and the run settings) can resume: same architecture and settings, epochs left.
+    trainer's keywords and the run settings) can resume: same architecture and settings, epochs of its
+    plan left (a run that a time budget ended early is finished).
     Files that are not checkpoints are passed over."""
     found = [p for folder in folders for p in Path(folder).glob("**/weights/last.pt")]
     for path in sorted(found, key=lambda p: p.stat().st_mtime, reverse=True):
@@ -96,7 +100,7 @@ def unfinished_checkpoint(
             continue
         if differences(state["arch"], arch) or settings_differences(state, settings):
             continue
-        if state["epoch"] + 1 < settings["epochs"]:
+        if state["epoch"] + 1 < state.get("planned_epochs", settings["epochs"]):
             return path
     return None
 

@@ -70,6 +70,17 @@ class RunState:
         self.ema = ModelEMA(model, decay=trainer.ema_decay, tau=trainer.ema_tau)
         self.scaler = torch.amp.GradScaler("cuda", enabled=trainer.amp and device.type == "cuda")
         self.epoch, self.best, self.history, self.partial = -1, -1.0, [], {}
+        self.planned = trainer.epochs  # the epochs the run trains: fewer where a time budget binds
+        self.spent_before = 0.0  # seconds of the budget spent before this process went on with the run
+        self.clock, self.clock_start = time.perf_counter, time.perf_counter()
+
+    def start_clock(self, clock, started: float) -> None:
+        """Count this process's share of the budget from `clock` reading `started`."""
+        self.clock, self.clock_start = clock, started
+
+    def elapsed(self) -> float:
+        """Seconds of the run's time budget spent: before a resume and in this process."""
+        return self.spent_before + self.clock() - self.clock_start
 
     def restore(self, path: str | Path) -> None:
         """Continue from the checkpoint at `path`; refuse it when its settings differ. One of another
@@ -88,6 +99,8 @@ class RunState:
         self.scaler.load_state_dict(state["scaler"])
         self.epoch, self.best, self.history = state["epoch"], state["best_fitness"], state["history"]
         self.partial = dict(state.get("partial") or {})
+        self.planned = state.get("planned_epochs", self.planned)
+        self.spent_before = state.get("elapsed_s", 0.0)
 
     def step(self) -> None:
         """One optimiser step on the gradients so far (unscaled, clipped), then the EMA update."""
@@ -116,6 +129,8 @@ class RunState:
             "optimizer": self.optimizer.state_dict(),
             "scaler": self.scaler.state_dict(),
             "epoch": self.epoch,
+            "planned_epochs": self.planned,
+            "elapsed_s": self.elapsed(),
             "partial": partial,
             "best_fitness": self.best,
             "history": self.history,

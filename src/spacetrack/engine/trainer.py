@@ -4,6 +4,13 @@ Everything random in an epoch (sample order, augmentation) is drawn from (seed, 
 cross an epoch boundary and the checkpoint holds the full optimiser, EMA and scaler state, so resuming
 from `last.pt` after a kill gives the same weights as a run that was never interrupted.
 
+With `max_minutes` the run fits a wall-clock budget: after every epoch the epochs still to come are
+planned from the mean epoch time so far (training and validation) and the minutes left, never more than
+`epochs`; the learning rate then decays over the planned epochs. The plan and the minutes spent are
+saved in every checkpoint, so a resumed run keeps counting from where it stopped. Where the budget
+binds, the result depends on the machine's speed (and a resumed run on its timings); where it does not,
+nothing changes.
+
 Launched in several processes (`torchrun`, see `engine.distributed`) it trains one model with
 DistributedDataParallel: `batch_size` stays the global batch, each process takes its share of every
 batch of the same (seed, epoch) order, and rank 0 alone validates and writes the checkpoints.
@@ -79,11 +86,17 @@ class Trainer:
         checkpoint_minutes: float | None = 10.0,
         sync_bn: bool = False,
         channels_last: bool = True,
+        max_minutes: float | None = None,
     ) -> None:
         self.settings = {k: v for k, v in locals().items() if k != "self"}
         for key, value in self.settings.items():
             setattr(self, key, value)
         lr_factor(0, epochs=epochs, lrf=lrf, schedule=schedule)  # reject an unknown schedule now
+        if max_minutes is not None and not max_minutes > 0:
+            raise ValueError(
+                f"train.trainer.max_minutes must be a positive number of minutes or null, got {max_minutes!r}"
+            )
+        self.clock = time.perf_counter  # what the budget is measured with (a test may replace it)
 
     def fit(
         self,
@@ -97,39 +110,76 @@ class Trainer:
         run_settings: dict[str, Any] | None = None,
         on_epoch_end: EpochCallback | None = None,
         extra_state: dict[str, Any] | None = None,
+        started: float | None = None,
     ) -> dict[str, Any]:
-        """Train `model` in place; return `history`, `best_fitness` and the checkpoint paths.
+        """Train `model` in place; return `history`, `best_fitness`, the checkpoint paths and
+        `planned_epochs` (the epochs trained: `epochs`, or fewer where `max_minutes` bound).
 
         `run_settings` (data, image size, augmentation...) are stored with the trainer's settings; a
         resume with any of them changed is refused. `extra_state` (the MLflow run id) goes into every
-        checkpoint as it is. In a distributed training every process calls it with the same arguments;
-        rank 0 alone writes `out_dir` and calls `on_epoch_end`, every process gets the same result.
+        checkpoint as it is. `started`: the `clock` reading the budget counts from (the job's start, so
+        that its data preparation counts too; default: now). In a distributed training every process
+        calls it with the same arguments; rank 0 alone writes `out_dir` and calls `on_epoch_end`, every
+        process gets the same result.
         """
         run = self._start(model, {**self.settings, **(run_settings or {})}, extra_state or {})
         if resume_from is not None:
             run.restore(resume_from)
+        if self.max_minutes is None:
+            run.planned = self.epochs  # a run that a budget cut, resumed without one, trains them all
+        run.start_clock(self.clock, self.clock() if started is None else started)
         weights = Path(out_dir) / "weights"
         if run.world.is_main:
             weights.mkdir(parents=True, exist_ok=True)
         val_loader = self._val_loader(val_set) if run.world.is_main else None
         num_batches = batches_per_epoch(len(train_set), batch_size=self.batch_size, world=run.world)
-        for epoch in range(run.epoch + 1, self.epochs):
+        epoch_seconds: list[float] = []
+        epoch = run.epoch + 1
+        while epoch < run.planned:
+            began = self.clock()
             train_set.set_epoch(epoch)
             components, images_per_s = self._train_epoch(
                 run, loss_fn, train_set, epoch, num_batches, last_checkpoint=weights / "last.pt"
             )
             record, details = self._validate(run, loss_fn, val_loader, epoch, components, images_per_s)
             is_best = run.finish_epoch(epoch, record)
+            epoch_seconds.append(self.clock() - began)
+            self._plan(run, epoch, epoch_seconds)
             if run.world.is_main:
                 self._save_epoch(run, weights, is_best)
                 if on_epoch_end is not None:
                     on_epoch_end(record, details, is_best)
+            epoch += 1
         return {
             "history": run.history,
             "best_fitness": run.best,
             "best": weights / "best.pt",
             "last": weights / "last.pt",
+            "planned_epochs": run.planned,
         }
+
+    def _plan(self, run: RunState, epoch: int, epoch_seconds: list[float]) -> None:
+        """After `epoch`: with `max_minutes`, the epochs the budget still fits (rank 0's plan on every
+        process), and a line when that changes the plan."""
+        if self.max_minutes is None:
+            return
+        planned = planned_epochs(
+            done=epoch + 1,
+            configured=self.epochs,
+            elapsed_s=run.elapsed(),
+            epoch_s=sum(epoch_seconds) / len(epoch_seconds),
+            budget_s=60 * self.max_minutes,
+        )
+        planned = broadcast_object(planned, run.world)
+        if planned != run.planned and run.world.is_main:
+            print(
+                f"train.trainer.max_minutes={self.max_minutes:g}: {run.elapsed() / 60:.1f} min spent, an epoch "
+                f"takes {sum(epoch_seconds) / len(epoch_seconds) / 60:.1f} min, so {planned} of the "
+                f"{self.epochs} epochs fit (the learning rate decays over them; "
+                "train.trainer.max_minutes=null trains them all)",
+                flush=True,
+            )
+        run.planned = planned
 
     def _start(self, model: nn.Module, settings: dict[str, Any], extra: dict[str, Any]) -> RunState:
         """This process's device, precision and share of the batch; the training state of `model`."""
@@ -205,11 +255,11 @@ class Trainer:
         skip = run.partial.pop("batch", 0)
         tally = LossTally(run.partial.pop("progress", None), run.world)
         run.partial.clear()
-        target_lr = self.lr0 * lr_factor(epoch, epochs=self.epochs, lrf=self.lrf, schedule=self.schedule)
+        target_lr = self.lr0 * lr_factor(epoch, epochs=run.planned, lrf=self.lrf, schedule=self.schedule)
         run.forward.train()
         run.optimizer.zero_grad()
         last_save = time.perf_counter()
-        bar = tqdm(self._epoch_loader(train_set, epoch, skip, run.world), desc=f"epoch {epoch + 1}/{self.epochs}",
+        bar = tqdm(self._epoch_loader(train_set, epoch, skip, run.world), desc=f"epoch {epoch + 1}/{run.planned}",
                    unit="batch", disable=not (self.progress and run.world.is_main), leave=False, initial=skip,
                    total=num_batches)  # fmt: skip
         for i, (images, targets) in enumerate(bar, start=skip):
@@ -279,6 +329,14 @@ class Trainer:
         if run.world.is_main:
             save_checkpoint(path, run.state(partial={"batch": next_batch, "progress": progress}))
         return now
+
+
+def planned_epochs(*, done: int, configured: int, elapsed_s: float, epoch_s: float, budget_s: float) -> int:
+    """The epochs a run trains in all when `done` are finished after `elapsed_s` seconds of its budget of
+    `budget_s`, an epoch taking `epoch_s`: those done and as many more as the time left holds whole,
+    at most `configured`."""
+    more = int(max(budget_s - elapsed_s, 0.0) // max(epoch_s, 1e-9))
+    return max(done, min(configured, done + more))
 
 
 def _diverged(

@@ -10,6 +10,7 @@ SLURM job of N tasks) the N processes train one model with DistributedDataParall
 from __future__ import annotations
 
 import math
+import time
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from functools import partial
@@ -101,6 +102,7 @@ def train_fold(cfg: DictConfig) -> dict:
     Launched in several processes (torchrun, a SLURM job of several tasks) the processes train one
     model together; rank 0 alone writes the run folder and the MLflow run (the others get run_id None).
     """
+    started = time.perf_counter()  # the time budget (train.trainer.max_minutes) counts the preparation too
     with process_group(cfg.train.trainer.device, key="train.trainer.device") as world:
         fold = _prepare_fold(cfg, world)
         plots = fold.out_dir / "plots"
@@ -123,16 +125,22 @@ def train_fold(cfg: DictConfig) -> dict:
                 run_settings=fold.run_settings,
                 on_epoch_end=partial(_log_epoch, plots, fold.class_names),
                 extra_state={"mlflow_run_id": active.info.run_id} if active is not None else None,
+                started=started,
             )
             best, summary = _best_epoch(result)
             if world.is_main:
                 _log_best(best, summary, result, plots)
+                log_metrics_step({"planned_epochs": result["planned_epochs"]}, step=0)
+    epochs = int(cfg.train.trainer.epochs)
+    cut = f" ({result['planned_epochs']} of {epochs} epochs: train.trainer.max_minutes)" if result[
+        "planned_epochs"] < epochs else ""  # fmt: skip
     print(
-        f"fold {cfg.fold}: best epoch {best['epoch']}: "
+        f"fold {cfg.fold}: best epoch {best['epoch']}{cut}: "
         + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
     )
     run_id = active.info.run_id if active is not None else None
-    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id}
+    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id,
+            "planned_epochs": result["planned_epochs"]}  # fmt: skip
 
 
 @dataclass
@@ -177,6 +185,7 @@ def _prepare_fold(cfg: DictConfig, world: World) -> _Fold:
         bool(cfg.train.trainer.amp),
         resolve_device(str(cfg.train.trainer.device)),
         gam=model.arch["gam_position"] is not None,
+        budget=cfg.train.trainer.get("max_minutes") is not None,
     )
     if hint and world.is_main:
         print(f"fold {cfg.fold}: {hint}", flush=True)
@@ -216,10 +225,13 @@ def _profile() -> str | None:
 FLOAT32_PROFILES = {False: "cpu_float32", True: "cpu_float32_gam"}
 
 
-def float32_hint(profile: str | None, amp: bool, device: torch.device, *, gam: bool = False) -> str | None:
+def float32_hint(
+    profile: str | None, amp: bool, device: torch.device, *, gam: bool = False, budget: bool = True
+) -> str | None:
     """A line for a CPU training whose mixed precision falls back to float32 (`autocast_dtype`: no
     native bfloat16) on a profile that takes over 30 minutes a fold there (the default one; for a model
-    with GAM also `cpu_float32`): which profile fits the budget; None elsewhere."""
+    with GAM also `cpu_float32`): which profile fits the budget, and (with `budget`: a time budget is
+    set) that the budget leaves epochs out; None elsewhere."""
     fits = FLOAT32_PROFILES[gam]
     longer = ["default", *FLOAT32_PROFILES.values()]
     if profile not in longer[: longer.index(fits)] or device.type != "cpu" or not amp:
@@ -228,9 +240,14 @@ def float32_hint(profile: str | None, amp: bool, device: torch.device, *, gam: b
         return None
     model = "YOLOv5s + GAM" if gam else "YOLOv5s"
     minutes = "about an hour" if profile == "default" else "over 30 minutes"
+    cut = (
+        ", so its time budget (train.trainer.max_minutes) leaves out the epochs that do not fit"
+        if budget
+        else ""
+    )
     return (
         f"this CPU has no native bfloat16, so steps run in float32 at about half the rate and a "
-        f"{model} fold takes {minutes} on two cores with train={profile}; "
+        f"{model} fold would take {minutes} on two cores with train={profile}{cut}; "
         f"train={fits} fits 30 minutes on a CPU as fast as the 2-core EPYC it was timed on "
         f"(docs/training.md; benchmarks/bench_train.py compares)"
     )
