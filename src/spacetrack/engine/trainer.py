@@ -136,14 +136,15 @@ class Trainer:
         epoch_seconds: list[float] = []
         epoch = run.epoch + 1
         while epoch < run.planned:
-            began = self.clock()
+            began, left = self.clock(), num_batches - run.partial.get("batch", 0)
             train_set.set_epoch(epoch)
             components, images_per_s = self._train_epoch(
                 run, loss_fn, train_set, epoch, num_batches, last_checkpoint=weights / "last.pt"
             )
             record, details = self._validate(run, loss_fn, val_loader, epoch, components, images_per_s)
             is_best = run.finish_epoch(epoch, record)
-            epoch_seconds.append(self.clock() - began)
+            # an epoch resumed mid-way ran only `left` of its batches: count it as a whole one
+            epoch_seconds.append((self.clock() - began) * num_batches / max(left, 1))
             self._plan(run, epoch, epoch_seconds)
             if run.world.is_main:
                 self._save_epoch(run, weights, is_best)
