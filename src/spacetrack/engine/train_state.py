@@ -72,11 +72,12 @@ class RunState:
         self.epoch, self.best, self.history, self.partial = -1, -1.0, [], {}
         self.planned = trainer.epochs  # the epochs the run trains: fewer where a time budget binds
         self.spent_before = 0.0  # seconds of the budget spent before this process went on with the run
-        self.clock, self.clock_start = time.perf_counter, time.perf_counter()
+        self.clock = trainer.clock
+        self.clock_start = self.clock()
 
-    def start_clock(self, clock, started: float) -> None:
-        """Count this process's share of the budget from `clock` reading `started`."""
-        self.clock, self.clock_start = clock, started
+    def start_clock(self, started: float) -> None:
+        """Count this process's share of the budget from the trainer's clock reading `started`."""
+        self.clock_start = started
 
     def elapsed(self) -> float:
         """Seconds of the run's time budget spent: before a resume and in this process."""

@@ -127,7 +127,8 @@ class Trainer:
             run.restore(resume_from)
         if self.max_minutes is None:
             run.planned = self.epochs  # a run that a budget cut, resumed without one, trains them all
-        run.start_clock(self.clock, self.clock() if started is None else started)
+        if started is not None:
+            run.start_clock(started)
         weights = Path(out_dir) / "weights"
         if run.world.is_main:
             weights.mkdir(parents=True, exist_ok=True)
@@ -164,18 +165,19 @@ class Trainer:
         process), and a line when that changes the plan."""
         if self.max_minutes is None:
             return
+        spent, epoch_s = run.elapsed(), sum(epoch_seconds) / len(epoch_seconds)
         planned = planned_epochs(
             done=epoch + 1,
             configured=self.epochs,
-            elapsed_s=run.elapsed(),
-            epoch_s=sum(epoch_seconds) / len(epoch_seconds),
+            elapsed_s=spent,
+            epoch_s=epoch_s,
             budget_s=60 * self.max_minutes,
         )
         planned = broadcast_object(planned, run.world)
         if planned != run.planned and run.world.is_main:
             print(
-                f"train.trainer.max_minutes={self.max_minutes:g}: {run.elapsed() / 60:.1f} min spent, an epoch "
-                f"takes {sum(epoch_seconds) / len(epoch_seconds) / 60:.1f} min, so {planned} of the "
+                f"train.trainer.max_minutes={self.max_minutes:g}: {spent / 60:.1f} min spent, an epoch "
+                f"takes {epoch_s / 60:.1f} min, so {planned} of the "
                 f"{self.epochs} epochs fit (the learning rate decays over them; "
                 "train.trainer.max_minutes=null trains them all)",
                 flush=True,

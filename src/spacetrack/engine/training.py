@@ -130,17 +130,20 @@ def train_fold(cfg: DictConfig) -> dict:
             best, summary = _best_epoch(result)
             if world.is_main:
                 _log_best(best, summary, result, plots)
-                log_metrics_step({"planned_epochs": result["planned_epochs"]}, step=0)
-    epochs = int(cfg.train.trainer.epochs)
-    cut = f" ({result['planned_epochs']} of {epochs} epochs: train.trainer.max_minutes)" if result[
-        "planned_epochs"] < epochs else ""  # fmt: skip
+    planned, epochs = result["planned_epochs"], int(cfg.train.trainer.epochs)
+    cut = f" ({planned} of {epochs} epochs: train.trainer.max_minutes)" if planned < epochs else ""
     print(
         f"fold {cfg.fold}: best epoch {best['epoch']}{cut}: "
         + ", ".join(f"{k} {v:.4f}" for k, v in summary.items())
     )
     run_id = active.info.run_id if active is not None else None
-    return {"metrics": summary, "best": result["best"], "last": result["last"], "run_id": run_id,
-            "planned_epochs": result["planned_epochs"]}  # fmt: skip
+    return {
+        "metrics": summary,
+        "best": result["best"],
+        "last": result["last"],
+        "run_id": run_id,
+        "planned_epochs": planned,
+    }
 
 
 @dataclass
@@ -325,8 +328,12 @@ def _best_epoch(result: dict) -> tuple[dict, dict[str, float]]:
 
 
 def _log_best(best: dict, summary: dict[str, float], result: dict, plots: Path) -> None:
-    """The best epoch's metrics to MLflow, with the best weights and plots."""
-    log_metrics_step({f"best_{k}": v for k, v in summary.items()} | {"best_epoch": best["epoch"]}, step=0)
+    """The best epoch's metrics and the epochs trained to MLflow, with the best weights and plots."""
+    log_metrics_step(
+        {f"best_{k}": v for k, v in summary.items()}
+        | {"best_epoch": best["epoch"], "planned_epochs": result["planned_epochs"]},
+        step=0,
+    )
     log_artifact_file(result["best"], "weights")
     for name in ("pr_curve.png", "confusion_matrix.png", "val_predictions.png"):
         log_artifact_file(plots / name, "plots")
