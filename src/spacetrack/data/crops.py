@@ -29,10 +29,14 @@ from spacetrack.data.yolo_dataset import apply_augmentation, frame_samples
 def check_crop_size(crop_size: int, frame_shape: Sequence[int], where: str) -> None:
     """A crop is a multiple of 32 pixels (the network's largest stride) and fits inside every frame."""
     if crop_size <= 0 or crop_size % 32:
-        raise ValueError(f"crop_size must be a positive multiple of 32 pixels, got {crop_size}")
+        raise ValueError(
+            f"the crop size (train.image_size) must be a positive multiple of 32 pixels, got {crop_size}"
+        )
     height, width = frame_shape[:2]
     if crop_size > min(height, width):
-        raise ValueError(f"crop_size {crop_size} is larger than the {width}x{height} frames of {where}")
+        raise ValueError(
+            f"the crop size (train.image_size) {crop_size} is larger than the {width}x{height} frames of {where}"
+        )
 
 
 def window_labels(
