@@ -20,27 +20,27 @@ import json
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
+from spacetrack.data.layout import BOX, CONF, FRAME, ID, frame_paths, read_mot, read_rgb
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import detect
+from spacetrack.engine.plots import xyxy_to_tlwh
 from spacetrack.io import atomic_write_text
 from spacetrack.tracking.iou_matching import iou_matrix
 
 
 def gt_rows(root: Path, sequence: str) -> np.ndarray:
-    path = root / sequence / "gt" / "gt.txt"
-    if not path.is_file():
-        raise SystemExit(f"{path}: no ground truth (render the dataset first)")
-    return np.loadtxt(path, delimiter=",", ndmin=2)
+    try:
+        return read_mot(root / sequence / "gt" / "gt.txt")
+    except FileNotFoundError as err:
+        raise SystemExit(f"{err} (render the dataset first)") from None
 
 
 def best_ious(detections: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """Per `tlwh` box the best IoU of any `x1, y1, x2, y2, ...` detection (0 without one)."""
     if not len(detections) or not len(boxes):
         return np.zeros(len(boxes))
-    tlwh = np.column_stack((detections[:, :2], detections[:, 2:4] - detections[:, :2]))
-    return iou_matrix(boxes, tlwh).max(axis=1)
+    return iou_matrix(boxes, xyxy_to_tlwh(detections[:, :4])).max(axis=1)
 
 
 def main() -> None:
@@ -62,20 +62,17 @@ def main() -> None:
 
     seen_root, silhouette_root = Path(args.seen), Path(args.silhouette)
     seen, silhouette = gt_rows(seen_root, args.sequence), gt_rows(silhouette_root, args.sequence)
-    outline = {(int(r[0]), int(r[1])): r[2:6] for r in silhouette}
+    outline = {(int(r[FRAME]), int(r[ID])): r[BOX] for r in silhouette}
     model = load_detector(args.weights)
-    images = sorted((seen_root / args.sequence / "img").iterdir())
+    images = list(enumerate(frame_paths(seen_root, args.sequence), start=1))
     seen_iou, whole_iou, area_ratio = [], [], []
-    for frame, path in enumerate(images, start=1):
-        if (frame - 1) % args.frame_stride:
-            continue
-        targets = seen[(seen[:, 0] == frame) & (seen[:, 6] > 0)]
+    for frame, path in images[:: args.frame_stride]:
+        targets = seen[(seen[:, FRAME] == frame) & (seen[:, CONF] > 0)]
         if not len(targets):
             continue
-        rgb = np.asarray(Image.open(path).convert("RGB"))
-        detections = detect(model, [rgb], conf_threshold=args.min_score, iou_threshold=0.6)[0]
-        whole = np.array([outline.get((frame, int(k)), np.zeros(4)) for k in targets[:, 1]])
-        seen_iou.extend(best_ious(detections, targets[:, 2:6]))
+        detections = detect(model, [read_rgb(path)], conf_threshold=args.min_score, iou_threshold=0.6)[0]
+        whole = np.array([outline.get((frame, int(k)), np.zeros(4)) for k in targets[:, ID]])
+        seen_iou.extend(best_ious(detections, targets[:, BOX]))
         whole_iou.extend(best_ious(detections, whole))
         area_ratio.extend(whole[:, 2] * whole[:, 3] / np.maximum(targets[:, 4] * targets[:, 5], 1e-9))
     s, w = np.array(seen_iou), np.array(whole_iou)
