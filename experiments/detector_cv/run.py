@@ -115,17 +115,18 @@ def validation_sets(
     return classes, sets, scenario
 
 
-def score(cfg, weights: Path, frame_stride: int, augment: bool = False) -> dict:
+def score(cfg, weights: Path, frame_stride: int, augment: bool = False, rename=None) -> dict:
     """METRICS of `weights` on the validation sequences of `cfg.fold`: overall and per scenario, and the
     confusion matrix over all of them (`evaluate`'s: row true class, column predicted, plus background and
-    missed); with `augment`, detected with test-time augmentation."""
+    missed); with `augment`, detected with test-time augmentation; with `rename`, each detection named by
+    that second stage (`evaluate`'s)."""
     model = load_detector(weights)
     classes, sets, _ = validation_sets(cfg, frame_stride)
     out, pooled, frames, confusion = {}, {kind: [] for kind in KINDS}, 0, []
     for group, data in sets.items():
         loader = DataLoader(data, batch_size=4, collate_fn=collate)
         _, details = evaluate(model, loader, device=model.stride.device, **NMS, class_agnostic=True,
-                              multi_label=True, augment=augment)  # fmt: skip
+                              multi_label=True, augment=augment, rename=rename)  # fmt: skip
         for kind in KINDS:
             pooled[kind].append(details[kind])
         out[group] = summary(details) | {"frames": len(data)}
@@ -302,6 +303,8 @@ def table(results: list[dict]) -> str:
             )
             + ")"
         )
+    if all(r.get("renamed_by") for r in results):
+        scored += ", each detection renamed by " + " and ".join(sorted({r["renamed_by"] for r in results}))
     return (
         f"Overrides `{'`, `'.join(overrides)}`; {scored}, native 640x480 frames.\n\n"
         + "\n".join(lines)

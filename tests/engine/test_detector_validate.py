@@ -74,6 +74,32 @@ def test_a_box_whose_second_class_is_right_counts_only_in_the_multi_label_matche
     assert detection_metrics(*details["matches_multi"])["map50"] == pytest.approx(1.0)
 
 
+def test_a_second_stage_renames_each_detection_from_the_image_before_matching():
+    """The detector finds the class-2 target at (16, 16)-(48, 40) but calls it class 1; a second stage
+    that reads the image and the detections names it 2, so the mAP and the confusion count it found."""
+    model = tiny_model().eval()
+    model.detect.decode = lambda raw: torch.tensor([[[32.0, 28.0, 32.0, 24.0, 0.9, 0.1, 0.8, 0.6]]])
+    images = torch.zeros(1, 3, 64, 64, dtype=torch.uint8)
+    images[0, :, 16:40, 16:48] = 200  # the target's pixels, what the second stage looks at
+    targets = torch.tensor([[0.0, 2.0, 0.5, 28 / 64, 0.5, 24 / 64]])  # image, class, cx, cy, w, h
+    seen = []
+
+    def rename(image, detections):
+        seen.append((image.shape, float(image[0, 20, 20]), float(image[0, 5, 5]), detections.copy()))
+        x1, y1, x2, y2 = detections[0, :4].round().astype(int)
+        return np.where(image[0, y1:y2, x1:x2].mean().item() > 0.5, 2.0, 0.0) * np.ones(len(detections))
+
+    kwargs = {"device": torch.device("cpu"), "conf_threshold": 0.001, "iou_threshold": 0.6, "max_det": 300}
+    plain, plain_details = evaluate(model, [(images, targets)], **kwargs)
+    renamed, details = evaluate(model, [(images, targets)], **kwargs, rename=rename)
+    assert plain["map50"] == 0.0 and plain_details["confusion"][2, 1] == 1  # true 2, called 1
+    assert renamed["map50"] == pytest.approx(1.0) and details["confusion"][2, 2] == 1
+    shape, inside, outside, detections = seen[0]
+    assert shape == (3, 64, 64) and inside == pytest.approx(200 / 255) and outside == 0.0  # in [0, 1]
+    np.testing.assert_allclose(detections[0, :5], [16, 16, 48, 40, 0.72], rtol=1e-6)
+    assert detections[0, 5] == 1.0  # handed the detector's own class
+
+
 def test_augmented_validation_adds_the_other_views_to_the_plain_one(tiny_dataset, monkeypatch):
     import spacetrack.engine.validate as validate
 

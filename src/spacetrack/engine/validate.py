@@ -27,6 +27,7 @@ def evaluate(
     class_agnostic: bool = False,
     multi_label: bool = False,
     augment: bool = False,
+    rename: Callable[[torch.Tensor, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[dict[str, float], dict[str, object]]:
     """(metrics, details) of `model` on `loader` (see `yolo_dataset.collate` for the batch format).
 
@@ -42,7 +43,10 @@ def evaluate(
     class an anchor scores above `conf_threshold` (see `non_max_suppression`: YOLOv5's way to measure mAP).
     The metrics themselves always come from one detection per box, the class of its best score.
     `augment`: detect with test-time augmentation (`inference.TTA_VIEWS`; the losses stay the plain
-    input's).
+    input's). `rename`: a second stage that names the detections of one image,
+    `rename(image, detections) -> classes` with the image (3, H, W) in [0, 1] and the detections (N, 6)
+    `xyxy, score, class` of its pixels; its classes replace the detector's before anything is matched
+    (the multi-label detections are not renamed).
     """
     model.eval()
     tps, tps_any, scores, pred_classes, gt_classes = [], [], [], [], []
@@ -68,6 +72,8 @@ def evaluate(
         batch_dets, batch_gts = [], []
         for i, det in enumerate(detections):
             det = det.cpu().numpy()
+            if rename is not None and len(det):
+                det[:, 5] = rename(x[i], det)
             mine = targets[targets[:, 0] == i]
             gt_boxes = (xywh_to_xyxy(mine[:, 2:6]) * size).numpy()
             gt_cls = mine[:, 1].numpy()

@@ -1,0 +1,60 @@
+"""The second-stage naming study: each object's class from the ground truth, each detection named from
+its own crop."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+import torch
+
+from spacetrack.config import REPO_ROOT
+from spacetrack.reid.crops import Cropper
+
+spec = importlib.util.spec_from_file_location(
+    "second_stage", REPO_ROOT / "experiments/naming/second_stage.py"
+)
+study = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(study)
+
+
+def test_object_classes_come_from_moving_and_parked_rows(tmp_path):
+    gt = tmp_path / "seq_a" / "gt"
+    gt.mkdir(parents=True)
+    (gt / "gt.txt").write_text("1,1,10,10,5,5,1,2,1.0\n2,1,11,10,5,5,1,2,1.0\n1,2,50,50,8,8,1,0,0.5\n")
+    (gt / "static.txt").write_text("1,1000,200,200,9,9,1,1,1.0\n")
+    (tmp_path / "seq_b" / "gt").mkdir(parents=True)
+    (tmp_path / "seq_b" / "gt" / "gt.txt").write_text("1,1,0,0,4,4,1,1,1.0\n")
+    classes = study.object_classes(tmp_path, ["seq_a", "seq_b"])
+    assert classes == {("seq_a", 1): 2, ("seq_a", 2): 0, ("seq_a", 1000): 1, ("seq_b", 1): 1}
+
+
+class Brightness(torch.nn.Module):
+    """Feature: each crop's mean; head: class 1 for a crop brighter than 0.3, else class 0."""
+
+    def forward(self, crops):
+        return crops.mean(dim=(1, 2, 3))[:, None]
+
+
+def test_each_detection_is_named_from_its_own_crop():
+    image = torch.zeros(3, 64, 96)
+    image[:, 10:20, 60:80] = 1.0  # one lit object; the rest is sky
+    detections = np.array([[60, 10, 80, 20, 0.9, 0.0], [5, 40, 15, 50, 0.8, 1.0]], dtype=np.float32)
+    head = lambda f: torch.cat([0.3 - f, f - 0.3], dim=1)  # noqa: E731
+    cropper = Cropper(height=16, width=16, margin=0.0, min_size=1.0)
+    classes = study.renamer(Brightness(), head, cropper)(image, detections)
+    assert classes.tolist() == [1.0, 0.0] and classes.dtype == detections.dtype
+
+
+def test_predict_batches_and_empty():
+    net, head = Brightness(), lambda f: torch.cat([0.3 - f, f - 0.3], dim=1)
+    crops = torch.cat([torch.ones(3, 3, 4, 4), torch.zeros(2, 3, 4, 4)])
+    assert study.predict(net, head, crops, batch=2).tolist() == [1, 1, 1, 0, 0]
+    assert len(study.predict(net, head, crops[:0])) == 0
+
+
+def test_a_detector_on_enhanced_frames_is_refused(monkeypatch):
+    monkeypatch.setattr("sys.argv", ["second_stage.py", "--fold", "0", "--", "enhance=dwt_hsv"])
+    with pytest.raises(SystemExit, match="frames as rendered"):
+        study.main()
