@@ -4,6 +4,7 @@ its own crop."""
 from __future__ import annotations
 
 import importlib.util
+import json
 
 import numpy as np
 import pytest
@@ -58,3 +59,28 @@ def test_a_detector_on_enhanced_frames_is_refused(monkeypatch):
     monkeypatch.setattr("sys.argv", ["second_stage.py", "--fold", "0", "--", "enhance=dwt_hsv"])
     with pytest.raises(SystemExit, match="frames as rendered"):
         study.main()
+
+
+faint_views_spec = importlib.util.spec_from_file_location(
+    "faint_views", REPO_ROOT / "experiments/naming/faint_views.py"
+)
+faint_views = importlib.util.module_from_spec(faint_views_spec)
+faint_views_spec.loader.exec_module(faint_views)
+
+
+def test_faint_objects_count_labelled_frames_seen_in_small_part(tmp_path):
+    manifest = {"format_version": 1, "class_names": ["satellite", "rocket_body", "debris"],
+                "sequences": [{"name": "seq_a", "fold": 3}]}  # fmt: skip
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    gt = tmp_path / "seq_a" / "gt"
+    gt.mkdir(parents=True)
+    # rocket body 1: three labelled frames at 0.1 seen, one unlabelled (conf 0); satellite 2: one at 0.1
+    (gt / "gt.txt").write_text(
+        "1,1,0,0,5,5,1,1,0.1\n2,1,0,0,5,5,1,1,0.1\n3,1,0,0,5,5,1,1,0.15\n4,1,0,0,5,5,0,1,0.1\n"
+        "1,2,9,9,5,5,1,0,0.1\n2,2,9,9,5,5,1,0,0.9\n"
+    )
+    (gt / "static.txt").write_text("")
+    totals, faint = faint_views.faint_objects(tmp_path, max_visibility=0.2, min_frames=3)
+    assert totals == {"satellite": 1, "rocket_body": 1, "debris": 0}
+    assert faint == [{"sequence": "seq_a", "fold": 3, "id": 1, "class": "rocket_body", "labelled_frames": 3,
+                      "faint_frames": 3, "median_visibility": 0.1}]  # fmt: skip
