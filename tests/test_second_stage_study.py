@@ -20,17 +20,6 @@ study = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(study)
 
 
-def test_object_classes_come_from_moving_and_parked_rows(tmp_path):
-    gt = tmp_path / "seq_a" / "gt"
-    gt.mkdir(parents=True)
-    (gt / "gt.txt").write_text("1,1,10,10,5,5,1,2,1.0\n2,1,11,10,5,5,1,2,1.0\n1,2,50,50,8,8,1,0,0.5\n")
-    (gt / "static.txt").write_text("1,1000,200,200,9,9,1,1,1.0\n")
-    (tmp_path / "seq_b" / "gt").mkdir(parents=True)
-    (tmp_path / "seq_b" / "gt" / "gt.txt").write_text("1,1,0,0,4,4,1,1,1.0\n")
-    classes = study.object_classes(tmp_path, ["seq_a", "seq_b"])
-    assert classes == {("seq_a", 1): 2, ("seq_a", 2): 0, ("seq_a", 1000): 1, ("seq_b", 1): 1}
-
-
 class Brightness(torch.nn.Module):
     """Feature: each crop's mean; head: class 1 for a crop brighter than 0.3, else class 0."""
 

@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spacetrack.data.layout import CLASS, CONF, ID, VISIBILITY, load_manifest, read_mot
+from spacetrack.data.layout import load_manifest
 from spacetrack.io import atomic_write_text
+from spacetrack.reid.dataset import collect_crops
 
 
 def faint_objects(root: Path, *, max_visibility: float, min_frames: int) -> tuple[dict, list[dict]]:
@@ -26,23 +27,19 @@ def faint_objects(root: Path, *, max_visibility: float, min_frames: int) -> tupl
     `max_visibility` of it]) over every sequence of the dataset at `root`, moving and parked objects."""
     manifest = load_manifest(root)
     names = list(manifest["class_names"])
+    fold = {s["name"]: s["fold"] for s in manifest["sequences"]}
+    # every labelled row (conf > 0) of known visibility, whatever its size
+    table = collect_crops(root, list(fold), min_visibility=0.0, min_box_size=0.0, include_static=True)
     totals, faint = dict.fromkeys(names, 0), []
-    for seq in manifest["sequences"]:
-        for file in ("gt.txt", "static.txt"):
-            path = root / seq["name"] / "gt" / file
-            if not path.is_file() or not path.read_text().strip():
-                continue
-            rows = read_mot(path)
-            rows = rows[rows[:, CONF] > 0]  # labelled frames
-            for i in np.unique(rows[:, ID]):
-                mine = rows[rows[:, ID] == i]
-                name = names[int(mine[0, CLASS])]
-                totals[name] += 1
-                low = int((mine[:, VISIBILITY] < max_visibility).sum())
-                if low >= min_frames:
-                    faint.append({"sequence": seq["name"], "fold": seq["fold"], "id": int(i), "class": name,
-                                  "labelled_frames": len(mine), "faint_frames": low,
-                                  "median_visibility": round(float(np.median(mine[:, VISIBILITY])), 3)})  # fmt: skip
+    for identity, (seq, object_id) in enumerate(table.names):
+        mine = table.identity == identity
+        name = names[int(table.object_class[mine][0])]
+        totals[name] += 1
+        low = int((table.visibility[mine] < max_visibility).sum())
+        if low >= min_frames:
+            faint.append({"sequence": seq, "fold": fold[seq], "id": object_id, "class": name,
+                          "labelled_frames": int(mine.sum()), "faint_frames": low,
+                          "median_visibility": round(float(np.median(table.visibility[mine])), 3)})  # fmt: skip
     return totals, faint
 
 

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from hydra.utils import instantiate
 
-from spacetrack.data.layout import CLASS, ID, load_manifest, read_mot, split_sequences
+from spacetrack.data.layout import load_manifest, split_sequences
 from spacetrack.engine.plots import xyxy_to_tlwh
 from spacetrack.io import atomic_path, atomic_write_text
 from spacetrack.reid.crops import Cropper
@@ -67,24 +67,10 @@ def _load(name: str, path: Path):
     return module
 
 
-def object_classes(root: Path, sequences: list[str]) -> dict[tuple[str, int], int]:
-    """{(sequence, object id): class index} from each sequence's gt.txt and static.txt."""
-    out = {}
-    for seq in sequences:
-        for name in ("gt.txt", "static.txt"):
-            path = root / seq / "gt" / name
-            if path.is_file():
-                rows = read_mot(path)
-                out |= {(seq, int(i)): int(c) for i, c in zip(rows[:, ID], rows[:, CLASS], strict=True)}
-    return out
-
-
-def crop_set(root: Path, sequences: list[str], cropper: Cropper, crops: dict, scale: float):
+def crop_set(root: Path, sequences: list[str], cropper: Cropper, scale: float):
     """(table, uint8 crops, class index per crop) of the ground-truth rows of `sequences`."""
-    table = collect_crops(root, sequences, **crops)
-    classes = object_classes(root, sequences)
-    labels = np.array([classes[table.names[i]] for i in table.identity], dtype=np.int64)
-    return table, cut_crops(root, table, cropper, scale=scale), labels
+    table = collect_crops(root, sequences, **SETTINGS["crops"])
+    return table, cut_crops(root, table, cropper, scale=scale), table.object_class.astype(np.int64)
 
 
 def build(num_classes: int) -> tuple[ReidNet, CosineSoftmax]:
@@ -94,9 +80,17 @@ def build(num_classes: int) -> tuple[ReidNet, CosineSoftmax]:
     )
 
 
-def train_classifier(root: Path, fold: int, cropper: Cropper, num_classes: int, path: Path, threads: int):
-    """The fold's classifier, trained on its training sequences or loaded from `path` when it was saved
-    with the same settings; returns (net, head, record)."""
+def train_classifier(
+    root: Path,
+    fold: int,
+    train_names: list[str],
+    cropper: Cropper,
+    num_classes: int,
+    path: Path,
+    threads: int,
+):
+    """The fold's classifier, trained on its training sequences `train_names` or loaded from `path` when it
+    was saved with the same settings; returns (net, head, record)."""
     net, head = build(num_classes)
     if path.is_file():
         saved = torch.load(path, map_location="cpu", weights_only=False)
@@ -104,10 +98,8 @@ def train_classifier(root: Path, fold: int, cropper: Cropper, num_classes: int, 
             net.load_state_dict(saved["net"])
             head.load_state_dict(saved["head"])
             return net.eval(), head.eval(), saved["record"]
-    torch.set_num_threads(threads)
-    train_names, _ = split_sequences(load_manifest(root), fold)
     started = time.perf_counter()
-    table, crops, labels = crop_set(root, train_names, cropper, SETTINGS["crops"], SETTINGS["context"])
+    table, crops, labels = crop_set(root, train_names, cropper, SETTINGS["context"])
     cut = time.perf_counter() - started
     size = SETTINGS["input"]
     dataset = CropDataset(crops, labels, height=size, width=size, seed=SETTINGS["seed"],
@@ -140,21 +132,20 @@ def predict(net: ReidNet, head: CosineSoftmax, crops: torch.Tensor, batch: int =
     return torch.cat(out).numpy() if out else np.zeros(0, dtype=np.int64)
 
 
-def truth_accuracy(root: Path, fold: int, cropper: Cropper, net, head, class_names: list[str]) -> dict:
-    """The classifier on the held-out fold's ground-truth boxes (moving and parked, every 2nd frame):
-    accuracy and confusion (rows true, columns predicted) overall and per scenario."""
-    manifest = load_manifest(root)
-    _, val_names = split_sequences(manifest, fold)
-    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
-    table, crops, labels = crop_set(root, val_names, cropper, SETTINGS["crops"], 1.0)
+def truth_accuracy(
+    root: Path, val_names: list[str], scenario: dict[str, str], cropper: Cropper, net, head, num_classes: int
+) -> dict:
+    """The classifier on the held-out ground-truth boxes of `val_names` (moving and parked, every 2nd
+    frame): accuracy and confusion (rows true, columns predicted) overall and per scenario (`scenario`:
+    each sequence's)."""
+    table, crops, labels = crop_set(root, val_names, cropper, 1.0)
     predicted = predict(net, head, torch.from_numpy(crops).permute(0, 3, 1, 2).float().div(255))
     groups = {"all": np.ones(len(labels), dtype=bool)}
     seq_scenario = np.array([scenario[table.sequences[s]] for s in table.sequence])
     groups |= {g: seq_scenario == g for g in sorted(set(seq_scenario))}
     out = {}
     for group, keep in groups.items():
-        k = len(class_names)
-        confusion = np.zeros((k, k), dtype=np.int64)
+        confusion = np.zeros((num_classes, num_classes), dtype=np.int64)
         np.add.at(confusion, (labels[keep], predicted[keep]), 1)
         out[group] = {"crops": int(keep.sum()), "accuracy": float((labels[keep] == predicted[keep]).mean()),
                       "confusion": confusion.tolist()}  # fmt: skip
@@ -187,12 +178,17 @@ def main() -> None:
         raise SystemExit(f"--variant {args.variant}: the classifier names crops of the frames as rendered, "
                          "so only a detector without input enhancement can be renamed by it")  # fmt: skip
     root = Path(cfg.data_root) / cfg.data.name
-    class_names = list(load_manifest(root)["class_names"])
+    manifest = load_manifest(root)
+    class_names = list(manifest["class_names"])
+    train_names, val_names = split_sequences(manifest, args.fold)
+    scenario = {s["name"]: s["scenario"] for s in manifest["sequences"]}
     size = SETTINGS["input"]
     cropper = Cropper(height=size, width=size, margin=SETTINGS["margin"], min_size=SETTINGS["min_size"])
     path = ROOT / "outputs" / "naming" / "second_stage" / f"classifier_{cfg.data.name}_fold{args.fold}.pt"
-    net, head, record = train_classifier(root, args.fold, cropper, len(class_names), path, args.threads)
-    truth = truth_accuracy(root, args.fold, cropper, net, head, class_names)
+    net, head, record = train_classifier(
+        root, args.fold, train_names, cropper, len(class_names), path, args.threads
+    )
+    truth = truth_accuracy(root, val_names, scenario, cropper, net, head, len(class_names))
     print(json.dumps({g: round(v["accuracy"], 3) for g, v in truth.items()}), flush=True)
     summary = {"fold": args.fold, "data": cfg.data.name, "classes": class_names, "settings": SETTINGS,
                "training": record, "truth_boxes": truth}  # fmt: skip

@@ -62,3 +62,17 @@ def test_augmentation_is_seeded_by_epoch_and_index(tiny_dataset) -> None:
     np.testing.assert_array_equal(
         plain[0][0].permute(1, 2, 0).mul(255).round().byte().numpy(), crops[0, 16:144, 8:72]
     )
+
+
+def test_each_crop_carries_its_objects_class_from_moving_and_parked_rows(tmp_path):
+    gt = tmp_path / "seq_a" / "gt"
+    gt.mkdir(parents=True)
+    (gt / "gt.txt").write_text("1,1,10,10,5,5,1,2,1.0\n2,1,11,10,5,5,1,2,1.0\n1,2,50,50,8,8,1,0,0.5\n")
+    (gt / "static.txt").write_text("1,1000,200,200,9,9,1,1,1.0\n")
+    (tmp_path / "seq_b" / "gt").mkdir(parents=True)
+    (tmp_path / "seq_b" / "gt" / "gt.txt").write_text("1,1,0,0,4,4,1,1,1.0\n")
+    table = collect_crops(
+        tmp_path, ["seq_a", "seq_b"], min_visibility=0.0, min_box_size=0.0, include_static=True
+    )
+    classes = {table.names[i]: int(c) for i, c in zip(table.identity, table.object_class, strict=True)}
+    assert classes == {("seq_a", 1): 2, ("seq_a", 2): 0, ("seq_a", 1000): 1, ("seq_b", 1): 1}

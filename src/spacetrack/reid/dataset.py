@@ -23,14 +23,15 @@ import torch
 from torch.utils.data import Dataset
 
 from spacetrack.data.frame_store import FrameStore
-from spacetrack.data.layout import BOX, CONF, FRAME, ID, VISIBILITY, read_mot
+from spacetrack.data.layout import BOX, CLASS, CONF, FRAME, ID, VISIBILITY, read_mot
 from spacetrack.reid.crops import Cropper, frame_tensor
 
 
 @dataclass(frozen=True)
 class CropTable:
     """One row per crop: `identity` (0..K-1 over `names`), `sequence` (index into `sequences`), 1-based
-    `frame`, `box` (N, 4) tlwh pixels, `visibility`; `names` holds each identity's (sequence, target id)."""
+    `frame`, `box` (N, 4) tlwh pixels, `visibility`, `object_class` (the row's class index); `names` holds
+    each identity's (sequence, target id)."""
 
     sequences: list[str]
     names: list[tuple[str, int]]
@@ -39,6 +40,7 @@ class CropTable:
     frame: np.ndarray
     box: np.ndarray
     visibility: np.ndarray
+    object_class: np.ndarray
 
     def __len__(self) -> int:
         return len(self.identity)
@@ -77,9 +79,8 @@ def collect_crops(
         ids = np.unique(mot[:, ID]).astype(int)
         label = np.searchsorted(ids, mot[:, ID].astype(int)) + len(names)
         names += [(seq, int(i)) for i in ids]
-        parts.append(
-            (label, np.full(len(mot), s), mot[:, FRAME].astype(int), mot[:, BOX], mot[:, VISIBILITY])
-        )
+        columns = (mot[:, FRAME].astype(int), mot[:, BOX], mot[:, VISIBILITY], mot[:, CLASS].astype(int))
+        parts.append((label, np.full(len(mot), s), *columns))
     if not names:
         raise ValueError(
             f"no usable crops in {root} for {len(sequences)} sequences (min_visibility={min_visibility}, "
