@@ -87,3 +87,22 @@ def test_fourth_stage_reads_every_rendered_scene_in_short_sequences():
     assert fourth.train.val_frame_stride % fourth.train.frame_stride == 0
     assert windows(fourth) == 13608
     assert fourth.train.trainer.epochs == 8 and fourth.train.trainer.lr0 == third.train.trainer.lr0
+
+
+def test_side_lit_set_adds_dim_side_lit_targets_to_the_pretraining_scenarios():
+    from spacetrack.data.scenario import scenario_params
+
+    first = compose_config("pretrain")
+    side = compose_config("pretrain", ["data=pretrain_side_lit"])
+    # the seven pretraining scenarios and one more, eight sequences each, labelled as the folds are
+    assert list(side.data.scenario) == [*first.data.scenario, "dim_side_lit"]
+    assert side.data.num_sequences == 8 * len(side.data.scenario)
+    assert side.data.num_sequences % side.data.num_folds == 0
+    assert side.data.truth == compose_config("train").data.truth == "seen"
+    # dim's sensor and exposure, the sun at the side and rocket bodies twice as likely
+    dim = scenario_params("dim", side.data.scenario.dim)
+    lit = scenario_params("dim_side_lit", side.data.scenario.dim_side_lit)
+    differs = {k for k in vars(dim) if getattr(dim, k) != getattr(lit, k)}
+    assert differs == {"sun_phase_deg", "class_weights"}
+    assert lit.sun_phase_deg[0] > dim.sun_phase_deg[0] and lit.sun_phase_deg[1] > dim.sun_phase_deg[1]
+    assert lit.class_weights[1] == 2 * lit.class_weights[0] == 2 * lit.class_weights[2]
