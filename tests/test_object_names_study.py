@@ -6,7 +6,6 @@ import importlib.util
 
 import numpy as np
 import pytest
-from PIL import Image
 
 from spacetrack.config import REPO_ROOT
 
@@ -20,7 +19,6 @@ spec.loader.exec_module(study)
 def sequence(tmp_path):
     seq = tmp_path / "seq_000_dim"
     (seq / "gt").mkdir(parents=True)
-    (seq / "img").mkdir()
     # frame, id, x, y, w, h, conf, class, visibility; object 2's second row is not labelled (conf 0)
     rows = [
         "1,1,5,5,4,4,1,0,0.9",
@@ -29,8 +27,6 @@ def sequence(tmp_path):
         "3,2,24,10,10,6,1,1,0.12",
     ]
     (seq / "gt" / "gt.txt").write_text("\n".join(rows) + "\n")
-    for k in (1, 2, 3):
-        Image.new("RGB", (48, 32)).save(seq / "img" / f"{k:06d}.jpg")
     return seq
 
 
@@ -55,5 +51,6 @@ def test_each_frame_counts_the_class_of_the_best_overlapping_detection_or_a_miss
         ]
     )
     monkeypatch.setattr(study, "detect", lambda model, frames, conf_threshold: [next(answers)])
-    tally = study.names(None, tmp_path, "seq_000_dim", rows, ["satellite", "rocket_body", "debris"])
+    images = [np.zeros((32, 48, 3), np.uint8)] * len(rows)
+    tally = study.names(None, images, rows[:, 1:5], ["satellite", "rocket_body", "debris"])
     assert tally == {"satellite": 0, "rocket_body": 0, "debris": 1, "missed": 1}

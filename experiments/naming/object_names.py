@@ -15,36 +15,34 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
-from spacetrack.data.layout import load_manifest
+from spacetrack.data.layout import frame_paths, load_manifest, read_rgb
 from spacetrack.engine.checkpoint import load_detector
 from spacetrack.engine.inference import detect
 from spacetrack.engine.metrics import box_iou
 from spacetrack.io import atomic_write_text
+from spacetrack.reid.dataset import collect_crops
 
 CONF, IOU = 0.25, 0.45
 
 
 def truth_rows(root: Path, sequence: str, object_id: int) -> np.ndarray:
     """(n, 7) `frame, x1, y1, x2, y2, class, visibility` of the object's labelled rows in gt/gt.txt."""
-    path = root / sequence / "gt" / "gt.txt"
-    gt = np.loadtxt(path, delimiter=",", ndmin=2)
-    rows = gt[(gt[:, 1] == object_id) & (gt[:, 6] > 0)]
-    if not len(rows):
-        raise ValueError(f"{path}: object {object_id} has no labelled row")
-    boxes = np.c_[rows[:, 2:4], rows[:, 2:4] + rows[:, 4:6]]
-    return np.c_[rows[:, 0], boxes, rows[:, 7], rows[:, 8]]
+    table = collect_crops(root, [sequence], min_visibility=0.0, min_box_size=0.0, include_static=False)
+    if (sequence, object_id) not in table.names:
+        raise ValueError(f"{root / sequence / 'gt' / 'gt.txt'}: object {object_id} has no labelled row")
+    mine = table.identity == table.names.index((sequence, object_id))
+    tl, wh = table.box[mine, :2], table.box[mine, 2:]
+    return np.c_[table.frame[mine], tl, tl + wh, table.object_class[mine], table.visibility[mine]]
 
 
-def names(model, root: Path, sequence: str, rows: np.ndarray, names_: list[str]) -> dict:
-    images = sorted((root / sequence / "img").iterdir())
-    tally = dict.fromkeys([*names_, "missed"], 0)
-    for frame, *box, _, _ in rows:
-        image = np.asarray(Image.open(images[int(frame) - 1]).convert("RGB"))
+def names(model, images: list[np.ndarray], boxes: np.ndarray, class_names: list[str]) -> dict:
+    """{class or `missed`: frames} over `images`, each holding the object at its xyxy row of `boxes`."""
+    tally = dict.fromkeys([*class_names, "missed"], 0)
+    for image, box in zip(images, boxes, strict=True):
         det = detect(model, [image], conf_threshold=CONF)[0]
-        iou = box_iou(np.asarray([box]), det[:, :4])[0] if len(det) else np.zeros(0)
-        tally[names_[int(det[iou.argmax(), 5])] if len(iou) and iou.max() >= IOU else "missed"] += 1
+        iou = box_iou(box[None], det[:, :4])[0] if len(det) else np.zeros(0)
+        tally[class_names[int(det[iou.argmax(), 5])] if len(iou) and iou.max() >= IOU else "missed"] += 1
     return tally
 
 
@@ -70,13 +68,13 @@ def main() -> None:
         "pairing": f"best-IoU detection at score >= {CONF}, IoU >= {IOU}, any class",
         "detectors": {},
     }
+    paths = frame_paths(args.dataset, args.sequence)
+    images = [read_rgb(paths[int(frame) - 1]) for frame in rows[:, 0]]  # read once for every detector
     for spec in args.detectors:
         label, path = spec.split("=", 1)
         model = load_detector(path).float()
-        record["detectors"][label] = {
-            "path": path,
-            "named": names(model, args.dataset, args.sequence, rows, class_names),
-        }
+        named = names(model, images, rows[:, 1:5], class_names)
+        record["detectors"][label] = {"path": path, "named": named}
         print(label, record["detectors"][label]["named"])
     atomic_write_text(args.out, json.dumps(record, indent=1) + "\n")
 
